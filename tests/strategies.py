@@ -1,0 +1,75 @@
+"""Seeded random models and states shared by the tests (one place, anchors §4)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import vdad
+from vdad.spatial import quat_normalize
+
+JOINT_KINDS = ("revolute", "prismatic", "spherical", "free", "fixed")
+
+
+def random_rotation(rng):
+    return vdad.spatial.quat_to_rot(quat_normalize(rng.normal(size=4)))
+
+
+def random_inertia(rng, scale=1.0):
+    """A physically valid rotational inertia (triangle inequality holds)."""
+    m = rng.uniform(0.5, 2.0, size=3) * scale
+    moments = np.array([m[1] + m[2], m[0] + m[2], m[0] + m[1]])
+    R = random_rotation(rng)
+    return R @ np.diag(moments) @ R.T
+
+
+def random_tree(seed, n=12, kinds=JOINT_KINDS, roots=1, springs=True, composite=False,
+                gravity=(0.0, 0.0, -9.81)):
+    """A random forest of ``n`` bodies with ``roots`` trees and every joint kind.
+
+    Root joints are free or revolute; internal joints cycle through ``kinds``.
+    With ``composite``, some joints are MuJoCo-style hinge chains with anchors.
+    """
+    rng = np.random.default_rng(seed)
+    bodies, joints = [], []
+    for i in range(n):
+        name = f"b{i}"
+        bodies.append(vdad.Body(name, mass=rng.uniform(0.5, 2.0),
+                                com=tuple(rng.normal(size=3) * 0.2),
+                                inertia=random_inertia(rng, 0.1)))
+        if i < roots:
+            parent, kind = None, ("free" if i % 2 == 0 else "revolute")
+        else:
+            parent = f"b{rng.integers(0, i)}"
+            kind = kinds[i % len(kinds)]
+        placement = vdad.Pose(tuple(rng.normal(size=3) * 0.5), random_rotation(rng))
+        stiffness = rng.uniform(0, 3) if springs else 0.0
+        damping = rng.uniform(0, 0.5) if springs else 0.0
+        if composite and parent is not None and i % 3 == 0:
+            stages = tuple(vdad.joints.Stage("hinge", tuple(rng.normal(size=3)),
+                                             tuple(rng.normal(size=3) * 0.1), 0.0,
+                                             stiffness, damping) for _ in range(1 + i % 3))
+            joints.append(vdad.Joint(f"j{i}", parent, name, "composite", placement=placement,
+                                     stages=stages))
+            continue
+        axis = tuple(rng.normal(size=3))
+        joints.append(vdad.Joint(f"j{i}", parent, name, kind, axis=axis, placement=placement,
+                                 stiffness=stiffness, damping=damping))
+    q_model = vdad.Model(bodies, joints, gravity=gravity)
+    q_spring = random_configuration(q_model, rng) if springs else None
+    return vdad.Model(bodies, joints, gravity=gravity, q_spring=q_spring, name=f"random{seed}")
+
+
+def random_configuration(model, rng):
+    q = rng.normal(size=model.nq)
+    for s in range(model.ns):
+        if model.stage_kind[s] == vdad.joints.BALL:
+            i = model.stage_q[s]
+            q[i:i + 4] = quat_normalize(q[i:i + 4])
+    return q
+
+
+def random_state(model, seed):
+    """Seeded ``(q, qd, tau, f_ext)`` for ``model``."""
+    rng = np.random.default_rng(seed)
+    return (random_configuration(model, rng), rng.normal(size=model.nv),
+            rng.normal(size=model.nv), rng.normal(size=(model.nb, 6)))

@@ -1,0 +1,18 @@
+"""vdad: view-dependent dynamics of articulated bodies (Kim, Redon and Kim 2008).
+
+``import vdad`` loads numpy only: renderers, MuJoCo, Pinocchio and trimesh load
+when a function needs them.
+"""
+
+from .assembly import AssemblyTree
+from .dynamics import forward_dynamics, passive_forces
+from .errors import InputError, ModelError, SimulationError, UnsupportedFeatureError, VdadError
+from .model import Body, Geom, Joint, Model, Pose
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AssemblyTree", "Body", "Geom", "InputError", "Joint", "Model", "ModelError", "Pose",
+    "SimulationError", "UnsupportedFeatureError", "VdadError", "forward_dynamics",
+    "passive_forces",
+]

@@ -1,0 +1,285 @@
+"""Binary assembly trees over a model (theory §4-5).
+
+Leaves are the bodies plus one *ground leaf* per root joint (``Phi = 0``,
+``b = 0``). Every internal node joins two sub-assemblies ``A`` (holding the
+predecessor side of its joint) and ``B`` (the successor side) across exactly one
+joint, so a tree is fixed by the order in which joints are merged: any
+permutation of the joints is a valid assembly order, and results do not depend on
+it. :meth:`AssemblyTree.balanced` picks the order by rounds of greedy matchings
+that prefer merges with few resulting ports, giving depth O(log n) on chains and
+small port sets on trees.
+
+A port is ``(joint, side)``: side ``+1`` if the sub-assembly holds the joint's
+child body, ``-1`` if it holds the parent. Each node's ports are ordered
+``alpha`` (from ``A``) then ``beta`` (from ``B``), as in (T11).
+
+The tree precomputes, per level of equal height, the index arrays that gather a
+level's inputs from and scatter its outputs to flat block stores (``Phi``:
+(nblocks, 6, 6), ``b``: (nslots, 6)); slot 0 is a zero block read for padding
+and ground leaves, slot 1 a trash slot written by padding.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+
+GROUND = -1
+ZERO, TRASH = 0, 1
+
+
+@dataclass(frozen=True)
+class Level:
+    """Gather/scatter plan of the internal nodes of one height (k nodes, P ports)."""
+
+    nodes: np.ndarray       # (k,) internal node ids
+    joint: np.ndarray       # (k,) joint of each node
+    WA: np.ndarray          # (k,) block Phi^A_{jA jA}
+    WB: np.ndarray          # (k,) block Phi^B_{jB jB}
+    bA: np.ndarray          # (k,) slot b^A_{jA}
+    bB: np.ndarray          # (k,) slot b^B_{jB}
+    Phi0: np.ndarray        # (k, P, P) blocks of blockdiag(Phi^A, Phi^B) on C's ports
+    G: np.ndarray           # (k, P) blocks Phi^child_{a j_child}
+    sign: np.ndarray        # (k, P) -1 alpha, +1 beta, 0 padding
+    b0: np.ndarray          # (k, P) slots b^child_a
+    out_Phi: np.ndarray     # (k, P, P) blocks of Phi^C
+    out_b: np.ndarray       # (k, P) slots of b^C
+    port_joint: np.ndarray  # (k, P) joint of each port (nj: padding)
+    port_side: np.ndarray   # (k, P) side of each port (0: padding)
+
+
+@dataclass(frozen=True)
+class LeafPlan:
+    """Ports of the body leaves, flattened (np_ ports, npairs port pairs)."""
+
+    body: np.ndarray        # (np_,) body of each leaf port
+    joint: np.ndarray       # (np_,) joint of the port
+    inbound: np.ndarray     # (np_,) True for the body's own joint
+    slot: np.ndarray        # (np_,) b slot
+    pair_h: np.ndarray      # (npairs,) leaf port indices h, k and the block
+    pair_k: np.ndarray      #   of Phi_hk
+    pair_block: np.ndarray
+
+
+class AssemblyTree:
+    """An immutable binary assembly tree of ``model``.
+
+    Build with :meth:`balanced`, :meth:`sequential` or from any joint order
+    ``AssemblyTree(model, order)`` (joint names or indices, each once).
+    Attributes: ``left``, ``right``, ``joint`` (internal nodes; children are
+    body ids ``0..nb-1``, ``GROUND`` or ``nb + internal index``), ``height``,
+    ``levels`` (bottom-up list of :class:`Level`), ``leaves`` (:class:`LeafPlan`),
+    ``ports`` (per node), ``n_blocks``, ``n_slots``.
+    """
+
+    def __init__(self, model, order):
+        nb = model.nb
+        order = [self._joint_id(model, j) for j in order]
+        if sorted(order) != list(range(nb)):
+            missing = sorted(set(range(nb)) - set(order))
+            raise InputError("an assembly order must name every joint exactly once; "
+                             f"missing or repeated: {[model.joint_names[j] for j in missing][:5]}")
+        self.model = model
+        # cluster bookkeeping: union-find over bodies; ground leaves are separate
+        find_parent = list(range(nb))
+
+        def find(i):
+            while find_parent[i] != i:
+                find_parent[i] = find_parent[find_parent[i]]
+                i = find_parent[i]
+            return i
+
+        node_of = list(range(nb))          # cluster root body -> node id
+        ports = [[(i, +1)] + [(int(c), -1) for c in model.children[i]] for i in range(nb)]
+        height = [0] * nb
+        left, right, joint = [], [], []
+        for j in order:
+            p = model.parent[j]
+            if p < 0:
+                a_node, a_ports, a_h = GROUND, [(j, -1)], 0
+            else:
+                ra = find(p)
+                a_node, a_ports, a_h = node_of[ra], ports[node_of[ra]], height[node_of[ra]]
+            rb = find(j)
+            b_node = node_of[rb]
+            node = nb + len(joint)
+            left.append(a_node)
+            right.append(b_node)
+            joint.append(j)
+            ports.append([pt for pt in a_ports if pt != (j, -1)]
+                         + [pt for pt in ports[b_node] if pt != (j, +1)])
+            height.append(1 + max(a_h, height[b_node]))
+            if p < 0:
+                node_of[rb] = node
+            else:
+                find_parent[rb] = ra
+                node_of[ra] = node
+        self.left = np.array(left, int)
+        self.right = np.array(right, int)
+        self.joint = np.array(joint, int)
+        self.height = np.array(height, int)
+        self.ports = tuple(tuple(p) for p in ports)
+        self.depth = int(max(height))
+        self._plan()
+
+    @staticmethod
+    def _joint_id(model, j):
+        if isinstance(j, str):
+            return model.joint_index(j)
+        j = int(j)
+        if not 0 <= j < model.nb:
+            raise InputError(f"joint index {j} out of range 0..{model.nb - 1}")
+        return j
+
+    # --- constructors --------------------------------------------------------------
+
+    @classmethod
+    def balanced(cls, model):
+        """Rounds of greedy matchings, cheapest merges (fewest ports) first."""
+        nb = model.nb
+        parent = model.parent
+        uf = list(range(nb))
+
+        def find(i):
+            while uf[i] != i:
+                uf[i] = uf[uf[i]]
+                i = uf[i]
+            return i
+
+        nports = np.array([1 + len(model.children[i]) for i in range(nb)])
+        size = np.ones(nb, int)
+        grounded = np.zeros(nb, bool)      # cluster root -> already holds its ground leaf
+        remaining = list(range(nb))
+        order = []
+        while remaining:
+            cand = []
+            for j in remaining:
+                b = find(j)
+                if parent[j] < 0:
+                    cand.append((nports[b] - 1, size[b] + 1, j, -1 - j, b))
+                else:
+                    a = find(parent[j])
+                    cand.append((nports[a] + nports[b] - 2, size[a] + size[b], j, a, b))
+            cand.sort()
+            used = set()
+            merged = []
+            for merged_ports, merged_size, j, a, b in cand:
+                if a in used or b in used:
+                    continue
+                used.update((a, b))
+                merged.append(j)
+                order.append(j)
+                if a < 0:
+                    grounded[b] = True
+                    nports[b] -= 1
+                    size[b] += 1
+                else:
+                    uf[b] = a
+                    nports[a] = merged_ports
+                    size[a] = merged_size
+                    grounded[a] |= grounded[b]
+            done = set(merged)
+            remaining = [j for j in remaining if j not in done]
+        return cls(model, order)
+
+    @classmethod
+    def sequential(cls, model):
+        """Tip-to-base order (each body joined to its subtree, ABA-like): depth O(n)."""
+        return cls(model, list(range(model.nb))[::-1])
+
+    # --- plans ------------------------------------------------------------------------
+
+    def _plan(self):
+        model = self.model
+        nb, nj = model.nb, model.nb
+        n_nodes = nb + len(self.joint)
+        # storage: blocks P^2 and slots P for every body leaf and internal node
+        block_base = np.zeros(n_nodes, int)
+        slot_base = np.zeros(n_nodes, int)
+        nblk, nslt = 2, 2
+        for n in range(n_nodes):
+            P = len(self.ports[n])
+            block_base[n], slot_base[n] = nblk, nslt
+            nblk += P * P
+            nslt += P
+        self.n_blocks, self.n_slots = nblk, nslt
+        self.block_base, self.slot_base = block_base, slot_base
+
+        def port_index(node, port):
+            return self.ports[node].index(port)
+
+        def block(node, a, b):
+            if node == GROUND:
+                return ZERO
+            return block_base[node] + a * len(self.ports[node]) + b
+
+        def slot(node, a):
+            return ZERO if node == GROUND else slot_base[node] + a
+
+        # leaves
+        lb, lj, lin, lslot, ph, pk, pblk = [], [], [], [], [], [], []
+        for i in range(nb):
+            first = len(lb)
+            for a, (j, side) in enumerate(self.ports[i]):
+                lb.append(i)
+                lj.append(j)
+                lin.append(side > 0)
+                lslot.append(slot_base[i] + a)
+            P = len(self.ports[i])
+            for a in range(P):
+                for b in range(P):
+                    ph.append(first + a)
+                    pk.append(first + b)
+                    pblk.append(block(i, a, b))
+        self.leaves = LeafPlan(*(np.array(x, int) for x in (lb, lj)), np.array(lin, bool),
+                               *(np.array(x, int) for x in (lslot, ph, pk, pblk)))
+
+        levels = []
+        internal_height = self.height[nb:]
+        for h in range(1, self.depth + 1):
+            ids = np.flatnonzero(internal_height == h)
+            k = len(ids)
+            P = max(len(self.ports[nb + i]) for i in ids)
+            arr = {name: np.zeros((k, P) if name in ("G", "sign", "b0", "out_b", "port_joint",
+                                                     "port_side") else (k, P, P), int)
+                   for name in ("Phi0", "G", "sign", "b0", "out_Phi", "out_b", "port_joint",
+                                "port_side")}
+            arr["out_Phi"][:] = TRASH
+            arr["out_b"][:] = TRASH
+            arr["port_joint"][:] = nj
+            WA, WB, bA, bB = (np.zeros(k, int) for _ in range(4))
+            for r, i in enumerate(ids):
+                node = nb + i
+                j, A, B = self.joint[i], self.left[i], self.right[i]
+                ports_A = [(j, -1)] if A == GROUND else list(self.ports[A])
+                ports_B = list(self.ports[B])
+                jA, jB = ports_A.index((j, -1)), ports_B.index((j, +1))
+                WA[r], WB[r] = block(A, jA, jA), block(B, jB, jB)
+                bA[r], bB[r] = slot(A, jA), slot(B, jB)
+                origin = []                 # (child node, index in child, sign)
+                for a, _pt in enumerate(ports_A):
+                    if a != jA:
+                        origin.append((A, a, jA, -1))
+                for b, _pt in enumerate(ports_B):
+                    if b != jB:
+                        origin.append((B, b, jB, +1))
+                P_C = len(self.ports[node])
+                assert P_C == len(origin)
+                for a, (ch, ia, jc, sg) in enumerate(origin):
+                    arr["G"][r, a] = block(ch, ia, jc)
+                    arr["sign"][r, a] = sg
+                    arr["b0"][r, a] = slot(ch, ia)
+                    arr["out_b"][r, a] = slot(node, a)
+                    arr["port_joint"][r, a], arr["port_side"][r, a] = self.ports[node][a]
+                    for b, (ch2, ib, _, _) in enumerate(origin):
+                        arr["Phi0"][r, a, b] = block(ch, ia, ib) if ch2 == ch else ZERO
+                        arr["out_Phi"][r, a, b] = block(node, a, b)
+            levels.append(Level(ids, self.joint[ids], WA, WB, bA, bB, **arr))
+        self.levels = tuple(levels)
+
+    def __repr__(self):
+        return (f"AssemblyTree(bodies={self.model.nb}, depth={self.depth}, "
+                f"max_ports={max(len(p) for p in self.ports)})")

@@ -1,0 +1,109 @@
+"""Forward dynamics and the generalised forces that act in joints.
+
+``forward_dynamics`` runs the DCA (:mod:`vdad.dca`) on a balanced assembly tree
+unless another tree is given; :func:`passive_forces` gives the joint springs and
+dampers of (T5)'s ``tau``.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from . import dca
+from . import joints as J
+from .assembly import AssemblyTree
+from .errors import InputError
+from .kinematics import kinematics
+from .spatial import quat_log, quat_mul
+
+
+def check_vector(name, x, n, allow_none=False):
+    """``x`` as a finite float vector of length ``n``, or a clear InputError."""
+    if x is None and allow_none:
+        return None
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be numeric, got {type(x).__name__}") from None
+    if a.shape != (n,):
+        raise InputError(f"{name} must have shape ({n},), got {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a))
+    if len(bad):
+        raise InputError(f"{name} has non-finite entries at indices {bad[:5].tolist()}")
+    return a
+
+
+def check_wrenches(model, f_ext):
+    """``f_ext`` as a finite (nb, 6) array, or None."""
+    if f_ext is None:
+        return None
+    a = np.asarray(f_ext, dtype=float)
+    if a.shape != (model.nb, 6):
+        raise InputError(f"f_ext must have shape ({model.nb}, 6) (torque about the centre of "
+                         f"mass; force, world axes), got {a.shape}")
+    bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+    if len(bad):
+        raise InputError(f"f_ext is not finite on body {model.body_names[bad[0]]!r}")
+    return a
+
+
+def passive_forces(model, q, qd):
+    """Joint spring and damper forces (nv,): ``-K (q - q_spring) - D qd`` per stage.
+
+    Ball stages use the rotation vector of ``q_spring^-1 q`` (as MuJoCo).
+    """
+    tau = np.zeros(model.nv)
+    k = model.stage_stiffness
+    for s in np.flatnonzero(k > 0):
+        kind, iq, iv = model.stage_kind[s], model.stage_q[s], model.stage_v[s]
+        if kind in (J.HINGE, J.SLIDE):
+            tau[iv] -= k[s] * (q[iq] - model.q_spring[iq])
+        elif kind == J.BALL:
+            qs = model.q_spring[iq:iq + 4] * np.array([1, -1, -1, -1])
+            qn = q[iq:iq + 4] / np.linalg.norm(q[iq:iq + 4])
+            tau[iv:iv + 3] -= k[s] * quat_log(quat_mul(qs, qn))
+        else:
+            tau[iv:iv + 3] -= k[s] * (q[iq:iq + 3] - model.q_spring[iq:iq + 3])
+    return tau - _damping(model) * qd
+
+
+@lru_cache(maxsize=64)
+def _damping(model):
+    d = np.zeros(model.nv)
+    for s in range(model.ns):
+        nv = J.STAGE_NV[model.stage_kind[s]]
+        d[model.stage_v[s]:model.stage_v[s] + nv] = model.stage_damping[s]
+    return d
+
+
+@lru_cache(maxsize=64)
+def default_tree(model) -> AssemblyTree:
+    """The balanced assembly tree of ``model`` (cached)."""
+    return AssemblyTree.balanced(model)
+
+
+def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
+    """Joint accelerations ``qdd`` (nv,) by the DCA (theory §4-5).
+
+    q (nq,), qd (nv,): state (MuJoCo layout); tau (nv,): actuation, added to
+    the joint springs and dampers; f_ext (nb, 6): external wrench per body,
+    (torque about its centre of mass; force) in world axes; tree: an
+    :class:`~vdad.assembly.AssemblyTree` (default: balanced); data: reusable
+    :class:`~vdad.dca.DCAData` work arrays of that tree.
+    """
+    q = check_vector("q", q, model.nq)
+    qd = check_vector("qd", qd, model.nv)
+    tau = check_vector("tau", tau, model.nv, allow_none=True)
+    f_ext = check_wrenches(model, f_ext)
+    tree = default_tree(model) if tree is None else tree
+    data = dca.make_data(tree) if data is None else data
+    kin = kinematics(model, q, qd)
+    tau_total = passive_forces(model, q, qd)
+    if tau is not None:
+        tau_total += tau
+    dca.leaves(model, tree, kin, dca.body_wrenches(model, kin, f_ext), data)
+    dca.assemble(model, tree, kin, np.append(tau_total, 0.0), data)
+    dca.back_substitute(model, tree, data)
+    return data.qdd[:-1].copy()
