@@ -25,7 +25,7 @@ from functools import lru_cache
 import numpy as np
 
 from .kinematics import plan
-from .spatial import motion_transform
+from .spatial import cross3, motion_transform, mv
 
 
 @dataclass
@@ -65,8 +65,8 @@ def body_wrenches(model, kin, f_ext):
     f = np.zeros((model.nb, 6))
     f[:, 3:] = model.mass[:, None] * (RT @ model.gravity)
     if f_ext is not None:
-        f[:, :3] += np.einsum("kij,kj->ki", RT, f_ext[:, :3])
-        f[:, 3:] += np.einsum("kij,kj->ki", RT, f_ext[:, 3:])
+        f[:, :3] += mv(RT, f_ext[:, :3])
+        f[:, 3:] += mv(RT, f_ext[:, 3:])
     return f
 
 
@@ -83,12 +83,13 @@ def leaves(model, tree, kin, f_body, data):
     X = motion_transform(E, r)                                      # X_{h<-c} (np_, 6, 6)
     Iinv = _inverse_inertia(model)                                  # (nb, 6, 6)
     Z = X @ Iinv[lp.body]
-    data.Phi[lp.pair_block] = Z[lp.pair_h] @ np.swapaxes(X[lp.pair_k], 1, 2)
-    w, v = kin.v[:, :3], kin.v[:, 3:] + np.cross(kin.v[:, :3], model.com)   # at the com
-    Iw = np.einsum("kij,kj->ki", model.inertia, w)
-    bias = np.concatenate([np.cross(w, Iw), model.mass[:, None] * np.cross(w, v)], axis=1)
-    a_c = np.einsum("kij,kj->ki", Iinv, f_body - bias)              # (nb, 6)
-    data.b[lp.slot] = np.einsum("kij,kj->ki", X, a_c[lp.body])
+    XT = np.ascontiguousarray(np.swapaxes(X, 1, 2))
+    data.Phi[lp.pair_block] = Z[lp.pair_h] @ XT[lp.pair_k]
+    w, v = kin.v[:, :3], kin.v[:, 3:] + cross3(kin.v[:, :3], model.com)   # at the com
+    Iw = mv(model.inertia, w)
+    bias = np.concatenate([cross3(w, Iw), model.mass[:, None] * cross3(w, v)], axis=1)
+    a_c = mv(Iinv, f_body - bias)              # (nb, 6)
+    data.b[lp.slot] = mv(X, a_c[lp.body])
 
 
 @lru_cache(maxsize=64)
@@ -109,20 +110,21 @@ def assemble(model, tree, kin, tau_ext, data):
         jid = lv.joint
         Wm = Phi[lv.WA] + Phi[lv.WB]                                    # (T6)
         T = kin.T[jid]
-        TtWT = np.swapaxes(T, 1, 2) @ Wm @ T + pl.T_pad_eye[jid]
-        Y = T @ np.linalg.solve(TtWT, np.swapaxes(T, 1, 2))            # (T7)
+        Tt = np.ascontiguousarray(np.swapaxes(T, 1, 2))
+        Y = T @ np.linalg.inv(Tt @ Wm @ T + pl.T_pad_eye[jid]) @ Tt    # (T7)
         W = kin.W[jid]
-        Wtau = np.einsum("kij,kj->ki", W, tau_ext[pl.dof_index[jid]])
+        Wtau = mv(W, tau_ext[pl.dof_index[jid]])
         gamma = b[lv.bB] - b[lv.bA] - kin.c[jid]                        # (T8)
-        beta = Wtau - np.einsum("kij,kj->ki", Y, np.einsum("kij,kj->ki", Wm, Wtau) + gamma)  # (T9)
+        beta = Wtau - mv(Y, mv(Wm, Wtau) + gamma)  # (T9)
         k, P = lv.sign.shape
         G = Phi[lv.G] * lv.sign[:, :, None, None]                       # (k, P, 6, 6)
         if P:
             GY = (G @ Y[:, None]).reshape(k, 6 * P, 6)
-            M = (GY @ np.swapaxes(G.reshape(k, 6 * P, 6), 1, 2)).reshape(k, P, 6, P, 6)
+            Gt = np.ascontiguousarray(np.swapaxes(G.reshape(k, 6 * P, 6), 1, 2))
+            M = (GY @ Gt).reshape(k, P, 6, P, 6)
             PhiC = Phi[lv.Phi0] - M.transpose(0, 1, 3, 2, 4)             # (T11)
             Phi[lv.out_Phi] = 0.5 * (PhiC + PhiC.transpose(0, 2, 1, 4, 3))
-            b[lv.out_b] = b[lv.b0] + np.einsum("kaij,kj->kai", G, beta)  # (T12)
+            b[lv.out_b] = b[lv.b0] + mv(G, beta[:, None])                # (T12)
         data.levels[n] = (Y, Wm, G, beta, gamma, W)
 
 
@@ -134,9 +136,8 @@ def back_substitute(model, tree, data):
         lv = tree.levels[n]
         Y, Wm, G, beta, gamma, W = data.levels[n]
         f = f_J[lv.port_joint] * lv.port_side[:, :, None]              # forces on C
-        u = np.einsum("kaji,kaj->ki", G, f)
-        fJ = beta - np.einsum("kij,kj->ki", Y, u)                       # (T10)
+        u = mv(np.swapaxes(G, -1, -2), f).sum(axis=1)
+        fJ = beta - mv(Y, u)                       # (T10)
         r = u + gamma
         f_J[lv.joint] = fJ
-        qdd[dof_index[lv.joint]] = np.einsum("kji,kj->ki", W,
-                                             np.einsum("kij,kj->ki", Wm, fJ) + r)  # (T13)
+        qdd[dof_index[lv.joint]] = mv(np.swapaxes(W, 1, 2), mv(Wm, fJ) + r)  # (T13)

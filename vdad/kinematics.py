@@ -19,7 +19,14 @@ from functools import lru_cache
 import numpy as np
 
 from . import joints as J
-from .spatial import axis_angle_to_rot, cross_motion, pose_to_motion_transform, quat_to_rot
+from .spatial import (
+    axis_angle_to_rot,
+    cross3,
+    cross_motion,
+    mv,
+    pose_to_motion_transform,
+    quat_to_rot,
+)
 
 _EYE3 = np.eye(3)
 
@@ -157,7 +164,7 @@ def stage_transforms(model, q):
             p[sel] = q[qi[:, None] + np.arange(3)]
         if kind in (J.HINGE, J.BALL):
             a = model.stage_anchor[sel]
-            p[sel] = a - np.einsum("kij,kj->ki", R[sel], a)
+            p[sel] = a - mv(R[sel], a)
     return R, p
 
 
@@ -169,7 +176,7 @@ def joint_kinematics(model, q):
     p_rel = np.array(model.placement_p)
     for sel in pl.rank_stages:
         jj = model.stage_joint[sel]
-        p_rel[jj] += np.einsum("kij,kj->ki", R_rel[jj], ps[sel])
+        p_rel[jj] += mv(R_rel[jj], ps[sel])
         R_rel[jj] = R_rel[jj] @ Rs[sel]
     S, T, W = pl.S, pl.T, pl.W
     Xs = None
@@ -181,7 +188,7 @@ def joint_kinematics(model, q):
         for sel in reversed(pl.multi_ranks):
             jj = model.stage_joint[sel]
             Xs[sel] = pose_to_motion_transform(sufR[jj], sufp[jj]) @ pl.s_pad[sel]
-            sufp[jj] = ps[sel] + np.einsum("kij,kj->ki", Rs[sel], sufp[jj])
+            sufp[jj] = ps[sel] + mv(Rs[sel], sufp[jj])
             sufR[jj] = Rs[sel] @ sufR[jj]
         cs = pl.col_stage
         S[model.stage_joint[cs], :, pl.col_joint_col] = Xs[cs, :, pl.col_stage_col]
@@ -198,7 +205,7 @@ def body_poses(model, R_rel, p_rel):
     p = np.concatenate([p_rel, np.zeros((1, 3))])
     for anc in plan(model).ancestors:
         Ra = R[anc]
-        p[:-1] = p[anc] + np.einsum("kij,kj->ki", Ra, p[:-1])
+        p[:-1] = p[anc] + mv(Ra, p[:-1])
         R[:-1] = Ra @ R[:-1]
     return R[:-1], p[:-1]
 
@@ -220,16 +227,16 @@ def body_velocities(model, S, R, p, qd):
     """
     pl = plan(model)
     qd_pad = np.append(qd, 0.0)[pl.dof_index]                      # (nj, 6)
-    u = np.einsum("kij,kj->ki", S, qd_pad)                          # child frame
-    w = np.einsum("kij,kj->ki", R, u[:, :3])
-    vp = np.einsum("kij,kj->ki", R, u[:, 3:])
+    u = mv(S, qd_pad)                          # child frame
+    w = mv(R, u[:, :3])
+    vp = mv(R, u[:, 3:])
     r = p[pl.root_of]
-    V = subtree_sum(model, np.concatenate([w, vp + np.cross(w, r - p)], axis=1))
+    V = subtree_sum(model, np.concatenate([w, vp + cross3(w, r - p)], axis=1))
     w = V[:, :3]
-    v_origin = V[:, 3:] + np.cross(w, p - r)
+    v_origin = V[:, 3:] + cross3(w, p - r)
     RT = np.swapaxes(R, 1, 2)
-    return np.concatenate([np.einsum("kij,kj->ki", RT, w),
-                           np.einsum("kij,kj->ki", RT, v_origin)], axis=1), u
+    return np.concatenate([mv(RT, w),
+                           mv(RT, v_origin)], axis=1), u
 
 
 def velocity_product(model, S, v, u, qd):

@@ -40,18 +40,34 @@ def crf(v):
     return -np.swapaxes(crm(v), -1, -2)
 
 
+def cross3(a, b):
+    """``a × b`` for (..., 3) arrays (numpy's ``cross`` costs more on small stacks)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
+
+
+def mv(A, x):
+    """Stacked matrix-vector product ``A x``: (..., m, n), (..., n) -> (..., m)."""
+    return np.matmul(A, x[..., None])[..., 0]
+
+
 def cross_motion(v, m):
     """``crm(v) m`` without forming the matrix: (..., 6), (..., 6) -> (..., 6)."""
     w, vl = v[..., :3], v[..., 3:]
-    return np.concatenate([np.cross(w, m[..., :3]),
-                           np.cross(w, m[..., 3:]) + np.cross(vl, m[..., :3])], axis=-1)
+    return np.concatenate([cross3(w, m[..., :3]),
+                           cross3(w, m[..., 3:]) + cross3(vl, m[..., :3])], axis=-1)
 
 
 def cross_force(v, f):
     """``crf(v) f`` without forming the matrix: (..., 6), (..., 6) -> (..., 6)."""
     w, vl = v[..., :3], v[..., 3:]
-    return np.concatenate([np.cross(w, f[..., :3]) + np.cross(vl, f[..., 3:]),
-                           np.cross(w, f[..., 3:])], axis=-1)
+    return np.concatenate([cross3(w, f[..., :3]) + cross3(vl, f[..., 3:]),
+                           cross3(w, f[..., 3:])], axis=-1)
 
 
 def motion_transform(E, r):
@@ -179,3 +195,4 @@ def axis_angle_to_rot(axis, angle):
     angle = np.asarray(angle, dtype=float)[..., None, None]
     K = skew(axis)
     return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+

@@ -1,0 +1,59 @@
+"""Physical quantities of a state: energy and spatial momentum (theory §8 checks).
+
+Body velocities come from :func:`vdad.kinematics.kinematics`; spatial momentum
+is expressed in world axes about the world origin, angular part first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import joints as J
+from .kinematics import kinematics
+from .spatial import cross3, mv, quat_log, quat_mul
+
+
+def kinetic_energy(model, q, qd):
+    """``sum_i 1/2 m |v_c|^2 + 1/2 w^T I_c w`` over bodies."""
+    kin = kinematics(model, q, qd)
+    w = kin.v[:, :3]
+    vc = kin.v[:, 3:] + cross3(w, model.com)
+    return 0.5 * float(np.sum(model.mass * np.sum(vc * vc, axis=1))
+                       + np.einsum("ki,kij,kj->", w, model.inertia, w))
+
+
+def potential_energy(model, q):
+    """Gravity ``-sum m g · c`` plus the joint springs' energy."""
+    kin = kinematics(model, q, np.zeros(model.nv))
+    c = kin.p + mv(kin.R, model.com)
+    energy = -float(np.sum(model.mass * (c @ model.gravity)))
+    for s in np.flatnonzero(model.stage_stiffness > 0):
+        kind, iq, k = model.stage_kind[s], model.stage_q[s], model.stage_stiffness[s]
+        if kind == J.BALL:
+            qs = model.q_spring[iq:iq + 4] * np.array([1, -1, -1, -1])
+            d = quat_log(quat_mul(qs, q[iq:iq + 4] / np.linalg.norm(q[iq:iq + 4])))
+        else:
+            n = J.STAGE_NV[kind]
+            d = q[iq:iq + n] - model.q_spring[iq:iq + n]
+        energy += 0.5 * k * float(np.dot(d, d))
+    return energy
+
+
+def total_energy(model, q, qd):
+    """Kinetic plus potential energy."""
+    return kinetic_energy(model, q, qd) + potential_energy(model, q)
+
+
+def spatial_momentum(model, q, qd):
+    """Total momentum (6,): (angular about the world origin; linear), world axes."""
+    kin = kinematics(model, q, qd)
+    w_body = kin.v[:, :3]
+    vc_body = kin.v[:, 3:] + cross3(w_body, model.com)
+    w = mv(kin.R, w_body)
+    vc = mv(kin.R, vc_body)
+    c = kin.p + mv(kin.R, model.com)
+    L_com = mv(kin.R,
+                      mv(model.inertia, w_body))
+    p = model.mass[:, None] * vc
+    return np.concatenate([np.sum(L_com + cross3(c, p), axis=0), np.sum(p, axis=0)]) \
+        if len(w) else np.zeros(6)

@@ -1,0 +1,60 @@
+"""The swinging pendulum (Kim 2008 §6.1: 20 bodies for Table 1, 300 for Figures 8-9)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..model import Body, Geom, Joint, Model, Pose
+from .base import Scene
+
+
+def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0,
+             axes="y", joint="revolute", damping=0.0, dt=1e-3, gravity=9.81):
+    """A chain of ``n_bodies`` capsule links hanging from a fixed point.
+
+    Each link is a solid capsule-like rod of ``link_mass`` and ``link_length``
+    (radius ``radius``, default a tenth of the length), its frame at the joint on
+    its top end, pointing down -z. Joints are revolute about ``axes`` (``"y"``:
+    a planar swing; ``"alternate"``: y, x, y, ... for motion in 3D) or spherical
+    (``joint="spherical"``), with optional viscous ``damping``. The chain is
+    released at rest with its first joint at ``angle`` rad (for ``"alternate"``
+    the second joint too, at half the angle, so that it swings in 3D).
+    """
+    if int(n_bodies) != n_bodies or n_bodies < 1:
+        raise InputError(f"n_bodies must be a positive integer, got {n_bodies}")
+    for name, value in (("link_length", link_length), ("link_mass", link_mass), ("dt", dt)):
+        if not np.isfinite(value) or value <= 0:
+            raise InputError(f"{name} must be positive, got {value}")
+    if axes not in ("y", "alternate"):
+        raise InputError(f"axes must be 'y' or 'alternate', got {axes!r}")
+    if joint not in ("revolute", "spherical"):
+        raise InputError(f"joint must be 'revolute' or 'spherical', got {joint!r}")
+    n = int(n_bodies)
+    L, m = float(link_length), float(link_mass)
+    r = L / 10 if radius is None else float(radius)
+    Ixx = m * (3 * r**2 + L**2) / 12
+    inertia = np.diag([Ixx, Ixx, m * r**2 / 2])
+    geom = Geom("capsule", (r, L / 2 - r if L > 2 * r else L / 2),
+                Pose((0.0, 0.0, -L / 2)))
+    bodies, joints = [], []
+    for i in range(n):
+        axis = (1.0, 0.0, 0.0) if axes == "alternate" and i % 2 else (0.0, 1.0, 0.0)
+        bodies.append(Body(f"link{i}", m, (0.0, 0.0, -L / 2), inertia, (geom,)))
+        joints.append(Joint(f"joint{i}", None if i == 0 else f"link{i - 1}", f"link{i}", joint,
+                            axis=axis, placement=Pose((0.0, 0.0, 0.0 if i == 0 else -L)),
+                            damping=damping))
+    model = Model(bodies, joints, gravity=(0.0, 0.0, -gravity), name=f"pendulum{n}")
+    q0 = np.array(model.q_neutral)
+    first = [(0, angle)] + ([(1, angle / 2)] if axes == "alternate" and n > 1 else [])
+    for j, a in first:
+        i = model.q_start[j]
+        if joint == "revolute":
+            q0[i] = a
+        else:
+            ax = np.array([1.0, 0, 0]) if (axes == "alternate" and j % 2) else np.array([0, 1.0, 0])
+            q0[i:i + 4] = np.concatenate([[np.cos(a / 2)], np.sin(a / 2) * ax])
+    return Scene("pendulum", f"{n}-link pendulum of {L} m, {m} kg capsule links, released from "
+                 f"{angle} rad", model, q0, np.zeros(model.nv), dt,
+                 params=dict(n_bodies=n, link_length=L, link_mass=m, radius=r, angle=angle,
+                             axes=axes, joint=joint, damping=damping, gravity=gravity))

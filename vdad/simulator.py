@@ -1,0 +1,76 @@
+"""Time stepping of a model: :class:`Simulator`.
+
+The simulator owns the state ``(t, q, qd)`` and the DCA work arrays; the model
+and the assembly tree stay immutable. Forces that depend on time or state come
+from two callables: ``controller(t, q, qd) -> tau`` (nv,) and
+``external(t, q, qd) -> f_ext`` (nb, 6), as in :func:`vdad.forward_dynamics`.
+A step that produces a non-finite state stops with a :class:`SimulationError`
+naming the step and the first joint at fault.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import dca
+from .dynamics import check_vector, default_tree, forward_dynamics
+from .errors import InputError, SimulationError
+from .integrators import get_integrator, normalize_configuration
+
+METHODS = ("dca",)
+
+
+class Simulator:
+    """Step ``model`` from ``(q0, qd0)`` with time step ``dt``.
+
+    method: ``"dca"`` (exact forward dynamics by the DCA).
+    integrator: ``"semi-implicit"`` (symplectic Euler) or ``"rk4"``.
+    tree: assembly tree (default: balanced).
+    """
+
+    def __init__(self, model, q0=None, qd0=None, dt=1e-3, method="dca",
+                 integrator="semi-implicit", tree=None, controller=None, external=None):
+        if method not in METHODS:
+            raise InputError(f"unknown method {method!r}; choose one of {METHODS}")
+        if not np.isfinite(dt) or dt <= 0:
+            raise InputError(f"dt must be a positive finite number, got {dt}")
+        self.model = model
+        self.method = method
+        self.dt = float(dt)
+        self.integrator_name = integrator
+        self._integrate = get_integrator(integrator)
+        self.tree = default_tree(model) if tree is None else tree
+        self.data = dca.make_data(self.tree)
+        self.controller = controller
+        self.external = external
+        q0 = model.q_neutral if q0 is None else q0
+        self.q = normalize_configuration(model, check_vector("q0", q0, model.nq))
+        self.qd = np.zeros(model.nv) if qd0 is None else check_vector("qd0", qd0, model.nv).copy()
+        self.t = 0.0
+        self.step_count = 0
+
+    def accelerations(self, t, q, qd):
+        """``qdd`` at ``(t, q, qd)`` with the simulator's forces."""
+        tau = None if self.controller is None else self.controller(t, q, qd)
+        f_ext = None if self.external is None else self.external(t, q, qd)
+        return forward_dynamics(self.model, q, qd, tau, f_ext, tree=self.tree, data=self.data)
+
+    def step(self, n=1):
+        """Advance ``n`` steps; returns ``self``."""
+        for _ in range(int(n)):
+            q, qd = self._integrate(self.model, self.accelerations, self.t, self.q, self.qd,
+                                    self.dt)
+            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+                self._blow_up(q, qd)
+            self.q, self.qd = q, qd
+            self.step_count += 1
+            self.t = self.step_count * self.dt
+        return self
+
+    def _blow_up(self, q, qd):
+        bad = np.flatnonzero(~np.isfinite(qd))
+        joint = self.model.joint_names[self.model.dof_joint[bad[0]]] if len(bad) else "?"
+        raise SimulationError(
+            f"step {self.step_count + 1} (t = {self.t + self.dt:.6g} s): the state became "
+            f"non-finite at joint {joint!r}; the time step {self.dt} may be too large for the "
+            f"model's stiffness, or a force returned NaN")
