@@ -73,3 +73,49 @@ def random_state(model, seed):
     rng = np.random.default_rng(seed)
     return (random_configuration(model, rng), rng.normal(size=model.nv),
             rng.normal(size=model.nv), rng.normal(size=(model.nb, 6)))
+
+
+def random_chain(seed, n=8, kinds=("revolute", "spherical", "prismatic", "revolute"),
+                 root="free", gravity=(0.0, 0.0, -9.81)):
+    """A random serial chain: ``root`` joint, then ``kinds`` in turn."""
+    rng = np.random.default_rng(seed)
+    bodies, joints = [], []
+    for i in range(n):
+        bodies.append(vdad.Body(f"b{i}", mass=rng.uniform(0.5, 2.0),
+                                com=tuple(rng.normal(size=3) * 0.2),
+                                inertia=random_inertia(rng, 0.1)))
+        kind = root if i == 0 else kinds[i % len(kinds)]
+        joints.append(vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}", kind,
+                                 axis=tuple(rng.normal(size=3)),
+                                 placement=vdad.Pose(tuple(rng.normal(size=3) * 0.5),
+                                                     random_rotation(rng))))
+    return vdad.Model(bodies, joints, gravity=gravity, name=f"chain{seed}")
+
+
+def coil_chain(n, skew=1.5, taper=0.95):
+    """Featherstone's ill-conditioned "coil" (spatial_v2 ``autoTree(n, 1, skew, taper)``):
+    revolute joints about z, each frame turned by ``skew`` about x and moved one
+    (tapering) link length along x; thin rods whose mass tapers as taper^3."""
+    bodies, joints = [], []
+    prev_len = 0.0
+    for i in range(n):
+        length, mass = taper**i, taper ** (3 * i)
+        inertia = mass * length**2 * np.array([0.0025, 1.015 / 12, 1.015 / 12])
+        bodies.append(vdad.Body(f"b{i}", mass, (length / 2, 0.0, 0.0), inertia))
+        c, s = np.cos(skew), np.sin(skew)
+        rot = np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) if i else np.eye(3)
+        joints.append(vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}", "revolute",
+                                 axis=(0, 0, 1), placement=vdad.Pose((prev_len, 0, 0), rot)))
+        prev_len = length
+    return vdad.Model(bodies, joints, gravity=(0.0, 0.0, -9.81), name=f"coil{n}")
+
+
+def relative_error(a, b):
+    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+def tolerance(model, q, c=100.0):
+    """``c · cond(M) · eps`` (theory §8, anchors §1)."""
+    from vdad.reference import crba
+
+    return c * np.linalg.cond(crba(model, q)) * np.finfo(float).eps

@@ -8,11 +8,12 @@ from .assembly import AssemblyTree
 from .dynamics import forward_dynamics, passive_forces
 from .errors import InputError, ModelError, SimulationError, UnsupportedFeatureError, VdadError
 from .model import Body, Geom, Joint, Model, Pose
+from .simulator import Simulator
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AssemblyTree", "Body", "Geom", "InputError", "Joint", "Model", "ModelError", "Pose",
-    "SimulationError", "UnsupportedFeatureError", "VdadError", "forward_dynamics",
+    "SimulationError", "Simulator", "UnsupportedFeatureError", "VdadError", "forward_dynamics",
     "passive_forces",
 ]

@@ -51,6 +51,8 @@ class Simulator:
 
     def accelerations(self, t, q, qd):
         """``qdd`` at ``(t, q, qd)`` with the simulator's forces."""
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            self._blow_up(q, qd)
         tau = None if self.controller is None else self.controller(t, q, qd)
         f_ext = None if self.external is None else self.external(t, q, qd)
         return forward_dynamics(self.model, q, qd, tau, f_ext, tree=self.tree, data=self.data)
@@ -58,8 +60,12 @@ class Simulator:
     def step(self, n=1):
         """Advance ``n`` steps; returns ``self``."""
         for _ in range(int(n)):
-            q, qd = self._integrate(self.model, self.accelerations, self.t, self.q, self.qd,
-                                    self.dt)
+            try:
+                q, qd = self._integrate(self.model, self.accelerations, self.t, self.q, self.qd,
+                                        self.dt)
+            except InputError as exc:
+                raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): a "
+                                      f"force callable returned bad values: {exc}") from exc
             if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
                 self._blow_up(q, qd)
             self.q, self.qd = q, qd
@@ -69,7 +75,11 @@ class Simulator:
 
     def _blow_up(self, q, qd):
         bad = np.flatnonzero(~np.isfinite(qd))
-        joint = self.model.joint_names[self.model.dof_joint[bad[0]]] if len(bad) else "?"
+        if len(bad):
+            joint = self.model.joint_names[self.model.dof_joint[bad[0]]]
+        else:
+            bad_q = np.flatnonzero(~np.isfinite(q))[0]
+            joint = self.model.joint_names[np.searchsorted(self.model.q_start, bad_q, "right") - 1]
         raise SimulationError(
             f"step {self.step_count + 1} (t = {self.t + self.dt:.6g} s): the state became "
             f"non-finite at joint {joint!r}; the time step {self.dt} may be too large for the "

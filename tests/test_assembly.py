@@ -1,0 +1,50 @@
+"""Assembly trees (vdad.assembly): shape, ports and order independence (theory §5)."""
+
+import numpy as np
+import pytest
+from strategies import random_state, random_tree, relative_error, tolerance
+
+import vdad
+from vdad.assembly import AssemblyTree
+from vdad.scenes import pendulum
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 20, 300, 1000])
+def test_balanced_chain_has_log_depth_and_two_ports(n):
+    tree = AssemblyTree.balanced(pendulum(n).model)
+    assert tree.depth == int(np.ceil(np.log2(n + 1)))       # n joints + the ground leaf
+    assert max(len(p) for p in tree.ports) <= 2
+    assert sum(len(lv.nodes) for lv in tree.levels) == n
+
+
+def test_tree_ports_stay_small_and_depth_logarithmic():
+    model = random_tree(5, n=200, roots=3)
+    tree = AssemblyTree.balanced(model)
+    assert tree.depth <= 4 * np.log2(model.nb)
+    assert sum(len(lv.nodes) for lv in tree.levels) == model.nb
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_result_does_not_depend_on_assembly_order(seed):
+    model = random_tree(seed, n=15, roots=2, composite=True)
+    q, qd, tau, f_ext = random_state(model, seed)
+    reference = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    rng = np.random.default_rng(seed)
+    orders = [AssemblyTree.sequential(model)]
+    orders += [AssemblyTree(model, rng.permutation(model.nb)) for _ in range(4)]
+    orders += [AssemblyTree(model, list(reversed(model.joint_names)))]
+    for tree in orders:
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext, tree=tree)
+        assert relative_error(qdd, reference) < tolerance(model, q)
+
+
+def test_invalid_orders():
+    model = random_tree(0, n=4)
+    with pytest.raises(vdad.InputError, match="every joint exactly once"):
+        AssemblyTree(model, [0, 1, 2])
+    with pytest.raises(vdad.InputError, match="every joint exactly once"):
+        AssemblyTree(model, [0, 1, 2, 2])
+    with pytest.raises(vdad.ModelError, match="no joint called 'j9'"):
+        AssemblyTree(model, ["j0", "j1", "j2", "j9"])
+    with pytest.raises(vdad.InputError, match="out of range"):
+        AssemblyTree(model, [0, 1, 2, 7])

@@ -1,0 +1,55 @@
+"""The command line (vdad.cli)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from vdad.cli import main
+
+
+def test_run_pendulum_writes_json(tmp_path, capsys):
+    out = tmp_path / "run.json"
+    assert main(["run", "pendulum", "--bodies", "5", "--steps", "20", "--dt", "0.002",
+                 "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    for key in ("scene", "method", "bodies", "joints", "steps", "dt", "ms_per_step", "final_q"):
+        assert key in data
+    assert (data["scene"], data["method"], data["bodies"], data["steps"]) == ("pendulum", "dca",
+                                                                             5, 20)
+    assert len(data["final_q"]) == 5 and data["ms_per_step"] > 0
+    assert "ms per step" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"]])
+def test_help(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 0
+    assert "usage: vdad" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "pendulum", "--steps", "0"], "--steps: must be a positive integer"),
+    (["run", "pendulum", "--dt", "nan"], "--dt: must be a positive number"),
+    (["run", "box"], "invalid choice: 'box'"),
+])
+def test_bad_arguments(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_unwritable_json_is_a_clear_error(tmp_path, capsys):
+    assert main(["run", "pendulum", "--bodies", "2", "--steps", "2", "--no-progress",
+                 "--json", str(tmp_path / "missing" / "x.json")]) == 2
+    assert "vdad: error:" in capsys.readouterr().err
+
+
+def test_console_entry_point():
+    result = subprocess.run([sys.executable, "-m", "vdad", "run", "pendulum", "--bodies", "3",
+                             "--steps", "5", "--no-progress"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "3-link pendulum" in result.stdout

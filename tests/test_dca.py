@@ -1,0 +1,163 @@
+"""The DCA against the reference algorithms (theory §8, checks 1, 2 and 7)."""
+
+import numpy as np
+import pytest
+from strategies import (
+    coil_chain,
+    random_chain,
+    random_configuration,
+    random_state,
+    random_tree,
+    relative_error,
+    tolerance,
+)
+
+import vdad
+from vdad import dca, reference
+from vdad.assembly import AssemblyTree
+from vdad.kinematics import kinematics
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_dca_equals_aba_and_crba_on_random_forests(seed):
+    model = random_tree(seed, n=6 + 3 * seed, roots=1 + seed % 3, composite=seed % 2 == 1)
+    q, qd, tau, f_ext = random_state(model, seed)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    tol = tolerance(model, q)
+    assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tol
+    assert relative_error(qdd, reference.crba_forward_dynamics(model, q, qd, tau, f_ext)) < tol
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rnea_inverts_the_dca(seed):
+    model = random_tree(seed, n=10, roots=2, composite=True)
+    q, qd, tau, f_ext = random_state(model, seed)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    tau_back = reference.rnea(model, q, qd, qdd, f_ext)
+    assert relative_error(tau_back, tau) < tolerance(model, q)
+
+
+def test_mass_matrix_gives_kinetic_energy():
+    from vdad.quantities import kinetic_energy
+
+    model = random_tree(3, n=9, roots=2, composite=True)
+    q, qd, _, _ = random_state(model, 3)
+    M = reference.crba(model, q)
+    np.testing.assert_allclose(M, M.T, atol=1e-14 * np.abs(M).max())
+    assert np.linalg.eigvalsh(M)[0] > 0
+    assert kinetic_energy(model, q, qd) == pytest.approx(0.5 * qd @ M @ qd, rel=1e-12)
+
+
+def test_port_inverse_inertia_is_J_Minv_JT():
+    """Phi = J M^-1 J^T for free-floating sub-assemblies (theory §2, check 2).
+
+    Each 2-port node of a free-floating chain covers bodies i..k; the same bodies
+    as a model of their own (body i on a free joint) give M, and the port
+    Jacobians are the velocities of body i in its frame and of body k in the
+    frame of joint k+1.
+    """
+    model = random_chain(7, n=9, root="free")
+    rng = np.random.default_rng(7)
+    q = random_configuration(model, rng)
+    tree = AssemblyTree.balanced(model)
+    data = dca.make_data(tree)
+    vdad.forward_dynamics(model, q, np.zeros(model.nv), tree=tree, data=data)
+    kin = kinematics(model, q, np.zeros(model.nv))
+    checked = 0
+    for node, ports in enumerate(tree.ports):
+        if node < model.nb or len(ports) == 0:
+            continue
+        bodies = sorted(_bodies_of(tree, node))
+        i, k = bodies[0], bodies[-1]
+        sub = _submodel(model, bodies)
+        q_sub = np.concatenate([kin.p[i], vdad.spatial.rot_to_quat(kin.R[i]),
+                                q[model.q_start[i + 1]:model.q_start[k] + model.nq_joint[k]]])
+        M = reference.crba(sub, q_sub)
+        J = []
+        for joint, side in ports:
+            cols = []
+            for d in range(sub.nv):
+                e = np.zeros(sub.nv)
+                e[d] = 1.0
+                v = kinematics(sub, q_sub, e).v
+                if side > 0:
+                    cols.append(v[joint - i])
+                else:
+                    X = vdad.spatial.pose_to_motion_transform(kin.R_rel[joint], kin.p_rel[joint])
+                    cols.append(X @ v[model.parent[joint] - i])
+            J.append(np.array(cols).T)
+        J = np.vstack(J)
+        P = len(ports)
+        base = tree.block_base[node]
+        Phi = data.Phi[base:base + P * P].reshape(P, P, 6, 6).transpose(0, 2, 1, 3)
+        expected = J @ np.linalg.solve(M, J.T)
+        assert relative_error(Phi.reshape(6 * P, 6 * P), expected) < tolerance(sub, q_sub)
+        checked += 1
+    assert checked >= 4
+
+
+def _bodies_of(tree, node):
+    nb = tree.model.nb
+    if node < 0:
+        return set()
+    if node < nb:
+        return {node}
+    i = node - nb
+    return _bodies_of(tree, tree.left[i]) | _bodies_of(tree, tree.right[i])
+
+
+def _submodel(model, bodies):
+    out_bodies = [model.bodies[b] for b in bodies]
+    joints = [vdad.Joint("root", None, model.body_names[bodies[0]], "free")]
+    joints += [model.joints[b] for b in bodies[1:]]
+    return vdad.Model(out_bodies, joints, gravity=model.gravity)
+
+
+@pytest.mark.parametrize("root", ["revolute", "free"])
+def test_translation_by_one_kilometre(root):
+    """Port frames make the DCA translation-invariant (theory §1, check 7)."""
+    model = random_chain(11, n=32, root=root)
+    q, qd, tau, f_ext = random_state(model, 11)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    if root == "free":
+        q_far = q.copy()
+        q_far[:3] += [1000.0, -700.0, 300.0]
+        far = model
+    else:
+        joints = list(model.joints)
+        R, p = joints[0].placement.matrix()
+        joints[0] = vdad.Joint("j0", None, "b0", root, axis=joints[0].axis,
+                               placement=vdad.Pose(tuple(p + [1000.0, -700.0, 300.0]), R))
+        far = vdad.Model(model.bodies, joints, gravity=model.gravity)
+        q_far = q
+    # f_ext's torques are about each centre of mass, so they do not change
+    qdd_far = vdad.forward_dynamics(far, q_far, qd, tau, f_ext)
+    assert relative_error(qdd_far, qdd) < 1e-9
+
+
+@pytest.mark.parametrize("n", [8, 32, 128, 256])
+def test_coil_chain(n):
+    """Featherstone's coil: error grows with cond(M) and stays within c·cond·eps."""
+    model = coil_chain(n)
+    rng = np.random.default_rng(n)
+    q, qd, tau = rng.normal(size=n), rng.normal(size=n), rng.normal(size=n)
+    qdd = vdad.forward_dynamics(model, q, qd, tau)
+    expected = reference.crba_forward_dynamics(model, q, qd, tau)
+    assert relative_error(qdd, expected) < tolerance(model, q, c=10.0)
+
+
+def test_bad_inputs_raise_vdad_errors():
+    model = random_tree(0, n=4)
+    q, qd, tau, f_ext = random_state(model, 0)
+    with pytest.raises(vdad.InputError, match=rf"q must have shape \({model.nq},\)"):
+        vdad.forward_dynamics(model, q[:-1], qd)
+    with pytest.raises(vdad.InputError, match="qd has non-finite entries at indices \\[2\\]"):
+        bad = qd.copy()
+        bad[2] = np.nan
+        vdad.forward_dynamics(model, q, bad)
+    with pytest.raises(vdad.InputError, match="f_ext is not finite on body 'b1'"):
+        bad = f_ext.copy()
+        bad[1, 4] = np.inf
+        vdad.forward_dynamics(model, q, qd, tau, bad)
+    with pytest.raises(vdad.InputError, match="f_ext must have shape"):
+        vdad.forward_dynamics(model, q, qd, tau, f_ext[:, :3])

@@ -1,0 +1,360 @@
+"""vdad against two independent oracles, MuJoCo and Pinocchio (anchors §1), and
+the MuJoCo importer/exporter.
+
+Tolerance. Backward-stable solvers of ``M qdd = rhs`` differ by about
+``cond(M) * eps`` relative to ``|qdd|``; we allow
+
+    max |qdd_a - qdd_b| <= C * cond(M) * eps * max(1, max |qdd_a|),   C = 100,
+
+with ``M`` the CRBA mass matrix at the state (Drake's ``c * cond * eps``). On the
+trees below (3 to 30 bodies, up to 74 dofs, cond(M) up to ~6e3) the observed
+ratio ``error / (cond(M) eps max(1, |qdd|))`` stays below 0.5 for MuJoCo and
+below 0.1 for Pinocchio, so C = 100 leaves a margin of 200 while still catching
+any modelling error (those show up at 1e-3 and above).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+from strategies import random_inertia, random_rotation, random_state, random_tree
+
+import vdad
+from vdad.interop.mujoco import (
+    from_mujoco,
+    load_mjcf,
+    mujoco_forward,
+    mujoco_layout,
+    to_mjspec,
+    to_mujoco,
+)
+from vdad.interop.pinocchio import pinocchio_forward, to_pinocchio
+from vdad.reference import crba
+
+C = 100.0
+EPS = np.finfo(float).eps
+SEEDS = range(12)
+
+
+def assert_qdd_close(model, q, expected, got, what):
+    cond = np.linalg.cond(crba(model, q))
+    scale = max(1.0, np.abs(expected).max())
+    err = np.abs(expected - got).max()
+    tol = C * cond * EPS * scale
+    assert err <= tol, (f"{what}: max error {err:.3e} > tol {tol:.3e} "
+                        f"(cond(M) = {cond:.3e}, max|qdd| = {scale:.3e})")
+
+
+def tree(seed, composite):
+    """Seeded random tree of 3..30 bodies and 1..3 roots, every joint kind.
+
+    Even seeds put their free root joints at the origin (identity placement), so
+    that the exporter writes MuJoCo freejoints; odd seeds keep random placements
+    (three slides and a ball in MuJoCo). Gravity varies with the seed.
+    """
+    n = 3 + seed * 27 // 11
+    gravity = (0.0, 0.0, -9.81) if seed % 3 == 0 else (0.7 * (seed % 5) - 1.0, 0.4, -9.81)
+    model = random_tree(seed, n=n, roots=1 + seed % 3, composite=composite, gravity=gravity)
+    if seed % 2 == 0:
+        joints = [replace(j, placement=vdad.Pose()) if j.kind == "free" and j.parent is None
+                  else j for j in model.joints]
+        model = vdad.Model(model.bodies, joints, gravity=model.gravity,
+                           q_spring=model.q_spring, name=model.name)
+    return model
+
+
+def test_trees_cover_every_joint_kind():
+    kinds = set()
+    for seed in SEEDS:
+        model = tree(seed, composite=True)
+        kinds |= {j.kind for j in model.joints}
+        kinds |= {(j.kind, j.parent is None) for j in model.joints if j.kind == "free"}
+    assert kinds >= {"revolute", "prismatic", "spherical", "free", "fixed", "composite",
+                     ("free", True), ("free", False)}
+    m, _ = to_mujoco(tree(0, composite=True))
+    assert mujoco.mjtJoint.mjJNT_FREE in m.jnt_type
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_dca_matches_mujoco_and_pinocchio(seed):
+    model = tree(seed, composite=False)
+    q, qd, tau, f_ext = random_state(model, seed)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    m, d = to_mujoco(model)
+    assert (m.nq, m.nv) == (model.nq, model.nv)
+    qdd_mj = mujoco_forward(m, d, q, qd, tau, f_ext)
+    pm = to_pinocchio(model)
+    qdd_pin = pinocchio_forward(pm, pm.createData(), model, q, qd, tau, f_ext)
+    assert_qdd_close(model, q, qdd, qdd_mj, "DCA vs MuJoCo")
+    assert_qdd_close(model, q, qdd, qdd_pin, "DCA vs Pinocchio")
+    assert_qdd_close(model, q, qdd_mj, qdd_pin, "MuJoCo vs Pinocchio")
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_dca_matches_mujoco_with_composite_joints(seed):
+    model = tree(seed, composite=True)
+    q, qd, tau, f_ext = random_state(model, seed + 100)
+    m, d = to_mujoco(model)
+    for args in ((q, qd, tau, f_ext), (q, qd, None, None)):
+        qdd = vdad.forward_dynamics(model, *args)
+        assert_qdd_close(model, q, qdd, mujoco_forward(m, d, *args), "DCA vs MuJoCo")
+
+
+def test_pinocchio_without_external_forces_or_springs():
+    model = random_tree(5, n=15, roots=2, springs=False)
+    q, qd, tau, _ = random_state(model, 5)
+    pm = to_pinocchio(model)
+    qdd = pinocchio_forward(pm, pm.createData(), model, q, qd, tau)
+    assert_qdd_close(model, q, vdad.forward_dynamics(model, q, qd, tau), qdd, "DCA vs Pinocchio")
+    assert isinstance(pm, pin.Model) and pm.nframes > model.nb   # joint and body frames
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_from_mujoco_round_trip(seed):
+    model = tree(seed, composite=True)
+    m, d = to_mujoco(model)
+    back = from_mujoco(m)
+    body, iq, iv = mujoco_layout(m)
+    assert [back.body_names[b - 1] for b in body] == list(model.body_names)
+    assert (back.nq, back.nv) == (model.nq, model.nv)
+    np.testing.assert_allclose(back.mass[body - 1], model.mass)
+    np.testing.assert_allclose(back.inertia[body - 1], model.inertia, atol=1e-12)
+    q, qd, tau, f_ext = random_state(model, seed)
+    qm, qdm, taum = np.empty(model.nq), np.empty(model.nv), np.empty(model.nv)
+    qm[iq], qdm[iv], taum[iv] = q, qd, tau
+    np.testing.assert_allclose(back.q_spring[iq], model.q_spring, atol=1e-15)
+    fm = np.empty_like(f_ext)
+    fm[body - 1] = f_ext
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    qdd_back = vdad.forward_dynamics(back, qm, qdm, taum, fm)[iv]
+    assert_qdd_close(model, q, qdd, qdd_back, "vdad vs vdad(from_mujoco(to_mujoco))")
+    # MuJoCo's own layout: back and m agree entry by entry
+    assert_qdd_close(model, q, qdd_back, mujoco_forward(m, d, q, qd, tau, f_ext), "MuJoCo")
+
+
+MJCF = """
+<mujoco model="hip">
+  <compiler angle="radian"/>
+  <option gravity="0.3 -0.2 -9.81"><flag contact="disable"/></option>
+  <asset><mesh name="tet" vertex="0 0 0  0.1 0 0  0 0.1 0  0 0 0.1"/></asset>
+  <worldbody>
+    <geom type="plane" size="5 5 0.1"/>
+    <body name="pelvis" pos="0.1 0.2 1" euler="0.1 0.2 0.3">
+      <joint name="root" type="free" stiffness="0.5" damping="0.1"/>
+      <geom type="box" size="0.2 0.1 0.05"/>
+      <body name="thigh" pos="0.1 0 -0.1" euler="0.05 -0.1 0.15">
+        <joint name="hip_x" type="hinge" axis="1 0 0" pos="0 0 0.05" stiffness="2"
+               springref="0.1" damping="0.3" range="-1 1"/>
+        <joint name="hip_y" type="hinge" axis="0 1 0" pos="0.01 0 0.05" ref="0.2" damping="0.1"/>
+        <joint name="hip_z" type="hinge" axis="0 0.6 0.8" pos="0 0.02 0.05" stiffness="1"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -0.4" size="0.05"/>
+        <body name="shin" pos="0 0 -0.4">
+          <joint name="knee" type="ball" pos="0 0.01 0.03" stiffness="1.5" damping="0.2"/>
+          <geom type="cylinder" size="0.04 0.2" pos="0 0 -0.2"/>
+          <body name="foot" pos="0 0 -0.4" quat="0.9 0.1 0.3 0.2">
+            <joint name="ankle" type="slide" axis="0 0.3 1" stiffness="4" springref="0.05"
+                   damping="0.5" ref="0.01"/>
+            <geom type="sphere" size="0.05"/>
+            <geom type="mesh" mesh="tet" pos="0.02 0 0"/>
+          </body>
+        </body>
+      </body>
+      <body name="tail" pos="-0.2 0 0" euler="0 0.5 0">
+        <geom type="ellipsoid" size="0.05 0.03 0.02"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+@pytest.fixture
+def hip_xml(tmp_path):
+    path = tmp_path / "hip.xml"
+    path.write_text(MJCF)
+    return path
+
+
+def test_load_mjcf_structure(hip_xml):
+    model = load_mjcf(hip_xml)
+    assert model.name == "hip"
+    assert model.body_names == ("pelvis", "thigh", "shin", "foot", "tail")
+    assert model.joint_names == ("root", "hip_x", "knee", "ankle", "tail_fixed")
+    kinds = [j.kind for j in model.joints]
+    assert kinds == ["free", "composite", "composite", "composite", "fixed"]
+    np.testing.assert_array_equal(model.placement_R[0], np.eye(3))
+    hip = model.joints[1]
+    assert [s.kind for s in hip.stages] == ["hinge"] * 3
+    assert hip.stages[1].ref == pytest.approx(0.2) and hip.stages[1].anchor == (0.01, 0, 0.05)
+    assert hip.limits == ((-1.0, 1.0), None, None)
+    assert model.joints[2].stages[0].anchor == pytest.approx((0, 0.01, 0.03))
+    np.testing.assert_allclose(model.gravity, (0.3, -0.2, -9.81))
+    geoms = [[g.kind for g in b.geoms] for b in model.bodies]
+    assert geoms == [["box"], ["capsule"], ["cylinder"], ["sphere", "mesh"], ["mesh"]]
+    assert len(model.bodies[3].geoms[1].mesh.faces) == 4
+    assert model.bodies[1].geoms[0].size == pytest.approx((0.05, 0.2))
+
+
+def test_load_mjcf_matches_mujoco(hip_xml):
+    model = load_mjcf(hip_xml)
+    m = mujoco.MjModel.from_xml_path(str(hip_xml))
+    d = mujoco.MjData(m)
+    body, iq, iv = mujoco_layout(m)
+    np.testing.assert_array_equal(iq, np.arange(m.nq))
+    for seed in range(3):
+        q, qd, tau, f_ext = random_state(model, seed)
+        q[7] = 0.3                                  # hip_x inside its range
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        d.qpos[:], d.qvel[:], d.qfrc_applied[:] = q, qd, tau
+        d.xfrc_applied[1:] = f_ext[:, [3, 4, 5, 0, 1, 2]]
+        mujoco.mj_forward(m, d)
+        assert d.nefc == 0
+        assert_qdd_close(model, q, qdd, d.qacc, "DCA vs mj_forward on the MJCF")
+        assert_qdd_close(model, q, qdd, mujoco_forward(m, d, q, qd, tau, f_ext), "mujoco_forward")
+
+
+def test_load_mjcf_missing_file(tmp_path):
+    path = tmp_path / "nowhere" / "robot.xml"
+    with pytest.raises(vdad.InputError, match="robot.xml"):
+        load_mjcf(path)
+
+
+def test_to_mjspec_keeps_names_and_geoms(hip_xml):
+    model = load_mjcf(hip_xml)
+    spec = to_mjspec(model)
+    m = spec.compile()
+    assert [m.body(i).name for i in range(1, m.nbody)] == list(model.body_names)
+    assert m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT
+    assert m.ngeom == sum(len(b.geoms) for b in model.bodies)
+    again = from_mujoco(m)
+    assert [j.kind for j in again.joints] == [j.kind for j in model.joints]
+    assert again.joints[1].limits == model.joints[1].limits
+    # refs and spring references of hinges and slides survive without to_mujoco's fix-up
+    _, iq, _ = mujoco_layout(m)
+    hs = [model.stage_q[s] for s in range(model.ns) if model.stage_kind[s] in (0, 1)]
+    np.testing.assert_allclose(m.qpos0[iq][hs], model.q_neutral[hs])
+    np.testing.assert_allclose(m.qpos_spring[iq][hs], model.q_spring[hs])
+
+
+@pytest.mark.parametrize("flag", ["mjDSBL_GRAVITY", "mjDSBL_SPRING", "mjDSBL_DAMPER"])
+def test_from_mujoco_honours_disable_flags(hip_xml, flag):
+    m = mujoco.MjModel.from_xml_path(str(hip_xml))
+    m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, flag))
+    model = from_mujoco(m)
+    q, qd, tau, f_ext = random_state(model, 7)
+    q[7] = 0.3
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    assert_qdd_close(model, q, qdd, mujoco_forward(m, mujoco.MjData(m), q, qd, tau, f_ext),
+                     f"DCA vs MuJoCo with {flag}")
+
+
+def _xml(body, extra=""):
+    return (f'<mujoco><worldbody><body name="a"><joint name="j1" type="hinge"/>'
+            f'<geom size="0.1"/>{body}</body></worldbody>{extra}</mujoco>')
+
+
+UNSUPPORTED = {
+    "armature": (_xml('<body name="b"><joint name="arm_j" armature="0.1"/>'
+                      '<geom size="0.1"/></body>'), "arm_j"),
+    "frictionloss": (_xml('<body name="b"><joint name="fl_j" frictionloss="0.2"/>'
+                          '<geom size="0.1"/></body>'), "fl_j"),
+    "equality": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
+                      '<equality><joint name="eq_lock" joint1="j1" joint2="j2"/></equality>'),
+                 "eq_lock"),
+    "tendon": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
+                    '<tendon><fixed name="tend"><joint joint="j1" coef="1"/></fixed></tendon>'),
+               "tend"),
+    "actuator": (_xml("", '<actuator><motor name="mot" joint="j1"/></actuator>'), "mot"),
+    "zero mass": (_xml('<body name="ghost" pos="1 0 0"/>'), "ghost.*inertial"),
+    "mocap": ('<mujoco><worldbody><body name="mc" mocap="true"><geom size="0.1"/></body>'
+              '</worldbody></mujoco>', "mc"),
+}
+
+
+@pytest.mark.parametrize("feature", sorted(UNSUPPORTED))
+def test_unsupported_feature_names_the_culprit(feature):
+    xml, culprit = UNSUPPORTED[feature]
+    m = mujoco.MjModel.from_xml_string(xml)
+    with pytest.raises(vdad.UnsupportedFeatureError, match=culprit):
+        from_mujoco(m)
+
+
+def test_free_joint_below_a_body_is_unsupported():
+    # MuJoCo's compiler refuses this, so hang a compiled free body below "a" afterwards
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body name="a"><joint name="j1"/><geom size="0.1"/></body>'
+        '<body name="c"><freejoint name="ff"/><geom size="0.1"/></body></worldbody></mujoco>')
+    m.body_parentid[2] = 1
+    with pytest.raises(vdad.UnsupportedFeatureError, match="ff.*'c'.*'a'"):
+        from_mujoco(m)
+
+
+def test_not_strict_drops_with_warnings():
+    xml = _xml('<body name="b"><joint name="j2" armature="0.1" frictionloss="0.2"/>'
+               '<geom size="0.1"/></body>',
+               '<equality><joint name="eq_lock" joint1="j1" joint2="j2"/></equality>'
+               '<tendon><fixed name="tend"><joint joint="j1" coef="1"/></fixed></tendon>'
+               '<actuator><motor name="mot" joint="j1"/></actuator>')
+    m = mujoco.MjModel.from_xml_string(xml)
+    with pytest.warns(UserWarning) as record:
+        model = from_mujoco(m, strict=False)
+    text = " ".join(str(w.message) for w in record)
+    for name in ("eq_lock", "tend", "mot", "armature", "frictionloss", "j2"):
+        assert name in text
+    assert model.nv == 2
+
+
+@pytest.mark.parametrize("change, culprit", [
+    ("composite", "j3"), ("anchor", "j1"), ("ref", "j2")])
+def test_to_pinocchio_rejects_what_it_cannot_express(change, culprit):
+    J = vdad.joints
+    bodies = [vdad.Body(f"b{i}", 1.0) for i in range(4)]
+    stages = {"anchor": {"j1": J.revolute(anchor=(0.1, 0, 0))},
+              "ref": {"j2": J.prismatic(ref=0.3)},
+              "composite": {"j3": J.revolute() + J.revolute(axis=(1, 0, 0))}}[change]
+    joints = []
+    for i in range(4):
+        name, parent = f"j{i}", (None if i == 0 else f"b{i - 1}")
+        if name in stages:
+            joints.append(vdad.Joint(name, parent, f"b{i}", "composite", stages=stages[name]))
+        else:
+            joints.append(vdad.Joint(name, parent, f"b{i}", "revolute"))
+    with pytest.raises(vdad.UnsupportedFeatureError, match=culprit):
+        to_pinocchio(vdad.Model(bodies, joints))
+
+
+def test_fixed_joints_merge_into_parent_in_pinocchio():
+    J = vdad.joints
+    rng = np.random.default_rng(3)
+    bodies = [vdad.Body(f"b{i}", 1.0 + i, tuple(rng.normal(size=3) * 0.2),
+                        random_inertia(rng, 0.1)) for i in range(5)]
+    kinds = ["fixed", "revolute", "fixed", "fixed", "spherical"]
+    joints = [vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}", kinds[i],
+                         axis=tuple(rng.normal(size=3)),
+                         placement=vdad.Pose(tuple(rng.normal(size=3)), random_rotation(rng)))
+              for i in range(5)]
+    model = vdad.Model(bodies, joints)
+    assert model.ns == len(J.revolute()) + len(J.spherical())
+    pm = to_pinocchio(model)
+    assert pm.njoints == 3
+    for seed in range(3):
+        q, qd, tau, f_ext = random_state(model, seed)
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        qdd_pin = pinocchio_forward(pm, pm.createData(), model, q, qd, tau, f_ext)
+        assert_qdd_close(model, q, qdd, qdd_pin, "DCA vs Pinocchio (fixed joints)")
+
+
+def test_importing_vdad_loads_neither_oracle():
+    code = textwrap.dedent("""
+        import sys
+        import vdad, vdad.interop.mujoco, vdad.interop.pinocchio
+        assert "mujoco" not in sys.modules and "pinocchio" not in sys.modules
+    """)
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -1,0 +1,497 @@
+"""MuJoCo interoperability: import compiled models and MJCF files, export to MjSpec.
+
+:func:`from_mujoco` turns a compiled ``mujoco.MjModel`` into a :class:`vdad.Model`
+whose ``q``/``qd`` are MuJoCo's ``qpos``/``qvel`` entry by entry (bodies keep
+MuJoCo's order, a body's joints become the stages of one vdad joint in MuJoCo's
+order, anchors (2), references and springs as in ``mj_kinematics``/``mj_passive``).
+
+:func:`to_mjspec`/:func:`to_mujoco` go the other way, so that MuJoCo can serve as
+an independent oracle (anchors §1). MuJoCo numbers bodies depth first, which is
+not always vdad's order; the exported model therefore records vdad's body index
+of every body in ``body_user`` (and a text element ``vdad_layout`` says so), and
+:func:`mujoco_layout` gives the index maps that :func:`mujoco_forward` applies.
+On models from anywhere else the maps are the identity.
+
+Conventions converted here (MuJoCo source, ``engine_core_smooth.c``):
+
+* free joint: ``xpos = qpos[0:3]``, ``xquat = qpos[3:7]`` regardless of
+  ``body_pos``/``body_quat``, hence an identity placement;                  (1)
+* hinge/ball with ``jnt_pos = a``: rotate about the anchor, ``p = a - R a``; (2)
+* ``xfrc_applied = (force, torque)`` at the centre of mass in world axes,
+  vdad's ``f_ext = (torque, force)``: columns ``[3, 4, 5, 0, 1, 2]``.        (3)
+
+``import vdad`` does not import MuJoCo: every function imports it when called.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from ..dynamics import check_vector
+from ..errors import InputError, ModelError, UnsupportedFeatureError
+from ..joints import BALL, HINGE, TRANSLATION, Stage
+from ..model import Body, Geom, Joint, Model, Pose
+from ..spatial import quat_to_rot, rot_to_quat
+
+LAYOUT_TEXT = "vdad_layout"
+_XFRC_FROM_FEXT = [3, 4, 5, 0, 1, 2]
+
+
+def _name(m, objtype, i, prefix):
+    import mujoco
+
+    name = mujoco.mj_id2name(m, objtype, i)
+    return name if name else f"{prefix}{i}"
+
+
+def _unique(name, taken):
+    base, k = name, 1
+    while name in taken:
+        name = f"{base}_{k}"
+        k += 1
+    taken.add(name)
+    return name
+
+
+def _unsupported(strict, message):
+    if strict:
+        raise UnsupportedFeatureError(message)
+    warnings.warn(message + " (dropped: strict=False)", stacklevel=3)
+
+
+def _check_model_features(m, strict):
+    """Model-wide features vdad does not model (raise, or warn and drop)."""
+    import mujoco
+
+    obj = mujoco.mjtObj
+    if m.neq > 0:
+        names = [_name(m, obj.mjOBJ_EQUALITY, i, "equality") for i in range(m.neq)]
+        _unsupported(strict, f"equality constraints are not supported: {names}")
+    if m.ntendon > 0:
+        names = [_name(m, obj.mjOBJ_TENDON, i, "tendon") for i in range(m.ntendon)]
+        _unsupported(strict, f"tendons are not supported: {names}")
+    if m.nu > 0:
+        names = [_name(m, obj.mjOBJ_ACTUATOR, i, "actuator") for i in range(m.nu)]
+        _unsupported(strict, f"actuators are not supported (pass joint forces as tau "
+                             f"instead): {names}")
+    if m.opt.density > 0 or m.opt.viscosity > 0:
+        _unsupported(strict, f"fluid forces (density {m.opt.density}, viscosity "
+                             f"{m.opt.viscosity}) are not supported")
+
+
+def _geoms(m, b, body_name):
+    """vdad geometries of MuJoCo body ``b``, posed in the body frame."""
+    import mujoco
+
+    gt = mujoco.mjtGeom
+    sphere, capsule, cylinder, box, ellipsoid, mesh_type = (int(x) for x in (
+        gt.mjGEOM_SPHERE, gt.mjGEOM_CAPSULE, gt.mjGEOM_CYLINDER, gt.mjGEOM_BOX,
+        gt.mjGEOM_ELLIPSOID, gt.mjGEOM_MESH))
+    out = []
+    for g in range(m.body_geomadr[b], m.body_geomadr[b] + m.body_geomnum[b]):
+        kind = int(m.geom_type[g])
+        size = m.geom_size[g]
+        pose = Pose(tuple(m.geom_pos[g]), tuple(m.geom_quat[g]))
+        rgba = tuple(float(x) for x in m.geom_rgba[g])
+        if kind == sphere:
+            out.append(Geom("sphere", (float(size[0]),), pose, rgba=rgba))
+        elif kind in (capsule, cylinder):
+            name = "capsule" if kind == capsule else "cylinder"
+            out.append(Geom(name, (float(size[0]), float(size[1])), pose, rgba=rgba))
+        elif kind == box:
+            out.append(Geom("box", tuple(float(x) for x in size), pose, rgba=rgba))
+        elif kind == ellipsoid:
+            import trimesh
+
+            mesh = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+            mesh.apply_scale(np.asarray(size, dtype=float))
+            out.append(Geom("mesh", (), pose, mesh=mesh, rgba=rgba))
+        elif kind == mesh_type:
+            import trimesh
+
+            k = m.geom_dataid[g]
+            v0, nv = m.mesh_vertadr[k], m.mesh_vertnum[k]
+            f0, nf = m.mesh_faceadr[k], m.mesh_facenum[k]
+            mesh = trimesh.Trimesh(vertices=np.array(m.mesh_vert[v0:v0 + nv], dtype=float),
+                                   faces=np.array(m.mesh_face[f0:f0 + nf]), process=False)
+            out.append(Geom("mesh", (), pose, mesh=mesh, rgba=rgba))
+        else:
+            gname = _name(m, mujoco.mjtObj.mjOBJ_GEOM, g, "geom")
+            warnings.warn(f"body {body_name!r}: geom {gname!r} of type "
+                          f"{gt(kind).name} has no vdad geometry; skipped", stacklevel=3)
+    return tuple(out)
+
+
+def _dof_value(values, adr, n, what, jname, body):
+    v = values[adr:adr + n]
+    if np.any(v != v[0]):
+        raise UnsupportedFeatureError(f"joint {jname!r} of body {body!r}: {what} differs "
+                                      f"between its dofs ({v.tolist()})")
+    return float(v[0])
+
+
+def _joint_stages(m, b, body, taken, strict, spring_on, damper_on):
+    """(kind, stages, limits, name, free) of the joints of MuJoCo body ``b``."""
+    import mujoco
+
+    free_type, ball_type, hinge_type = (int(mujoco.mjtJoint.mjJNT_FREE),
+                                        int(mujoco.mjtJoint.mjJNT_BALL),
+                                        int(mujoco.mjtJoint.mjJNT_HINGE))
+    stages, limits, names = [], [], []
+    free = False
+    j0, nj = m.body_jntadr[b], m.body_jntnum[b]
+    for j in range(j0, j0 + nj):
+        jname = _name(m, mujoco.mjtObj.mjOBJ_JOINT, j, "joint")
+        names.append(jname)
+        kind = int(m.jnt_type[j])
+        dof, qadr = m.jnt_dofadr[j], m.jnt_qposadr[j]
+        ndof = {free_type: 6, ball_type: 3}.get(kind, 1)
+        for field, what in (("dof_armature", "armature"), ("dof_frictionloss",
+                                                            "frictionloss")):
+            val = getattr(m, field)[dof:dof + ndof]
+            if np.any(val != 0):
+                _unsupported(strict, f"joint {jname!r} of body {body!r}: nonzero {what} "
+                                     f"{val.tolist()} is not supported")
+        if np.any(m.jnt_stiffnesspoly[j] != 0) or np.any(m.dof_dampingpoly[dof:dof + ndof] != 0):
+            raise UnsupportedFeatureError(f"joint {jname!r} of body {body!r}: polynomial "
+                                          f"stiffness or damping is not supported")
+        if m.jnt_springyield[j] > 0 and m.jnt_stiffness[j] > 0:
+            raise UnsupportedFeatureError(f"joint {jname!r} of body {body!r}: plastic springs "
+                                          f"(springyield) are not supported")
+        k = float(m.jnt_stiffness[j]) if spring_on else 0.0
+        d = _dof_value(m.dof_damping, dof, ndof, "damping", jname, body) if damper_on else 0.0
+        anchor = tuple(float(x) for x in m.jnt_pos[j])
+        axis = tuple(float(x) for x in m.jnt_axis[j])
+        lim = (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])) if m.jnt_limited[j] else None
+        if kind == free_type:
+            if m.body_parentid[b] != 0:
+                parent = _name(m, mujoco.mjtObj.mjOBJ_BODY, m.body_parentid[b], "body")
+                raise UnsupportedFeatureError(f"free joint {jname!r} of body {body!r} hangs "
+                                              f"below body {parent!r}; a free joint must join "
+                                              f"a body to the world")
+            if nj > 1:
+                raise UnsupportedFeatureError(f"free joint {jname!r} of body {body!r} shares "
+                                              f"its body with other joints")
+            free = True
+            stages += [Stage("translation", stiffness=k, damping=d), Stage("ball", stiffness=k,
+                                                                            damping=d)]
+            limits.append(None)
+        elif kind == ball_type:
+            stages.append(Stage("ball", anchor=anchor, stiffness=k, damping=d))
+            limits.append(lim)
+        else:
+            name = "hinge" if kind == hinge_type else "slide"
+            stages.append(Stage(name, axis, anchor, float(m.qpos0[qadr]), k, d))
+            limits.append(lim)
+    if not names:
+        return "fixed", (), None, _unique(f"{body}_fixed", taken), False
+    name = _unique(names[0], taken)
+    if free:
+        return "free", tuple(stages), None, name, True
+    if len(stages) == 1:
+        s = stages[0]
+        simple = s.ref == 0.0 and (s.kind == "slide" or not any(s.anchor))
+        if simple:
+            kind = {"hinge": "revolute", "slide": "prismatic", "ball": "spherical"}[s.kind]
+            return kind, tuple(stages), limits[0], name, False
+        return "composite", tuple(stages), limits[0], name, False
+    return "composite", tuple(stages), (None if all(x is None for x in limits)
+                                         else tuple(limits)), name, False
+
+
+def from_mujoco(m, *, strict=True) -> Model:
+    """A :class:`vdad.Model` of the compiled ``mujoco.MjModel`` ``m``.
+
+    Bodies keep MuJoCo's order (world body 0 skipped) and ``q``/``qd`` are
+    ``qpos``/``qvel`` entry by entry. ``body_pos``/``body_quat`` become the joint
+    placement (identity for free joints, (1)); ``body_mass``, ``body_ipos`` and
+    ``R diag(body_inertia) R^T`` with ``R`` of ``body_iquat`` the inertial data;
+    ``jnt_stiffness``, ``dof_damping``, ``qpos_spring`` and ``opt.gravity`` the
+    springs, dampers and gravity (zeroed where ``opt.disableflags`` disables
+    them); ranges of limited joints go to :attr:`vdad.Joint.limits` (a pair, or
+    one pair or None per stage of a composite joint; stored, not enforced).
+
+    Raises :class:`vdad.UnsupportedFeatureError`, naming the culprit, on mocap
+    bodies, massless bodies, free joints below a body, nonzero armature or
+    frictionloss, equality constraints, tendons, actuators, fluid forces and
+    gravity compensation. With ``strict=False`` tendons, actuators, equality
+    constraints, armature, frictionloss, fluid forces and gravity compensation
+    are dropped with a warning instead.
+    """
+    import mujoco
+
+    obj = mujoco.mjtObj
+    _check_model_features(m, strict)
+    flags = int(m.opt.disableflags)
+    dsbl = mujoco.mjtDisableBit
+    gravity = (np.zeros(3) if flags & int(dsbl.mjDSBL_GRAVITY) else np.array(m.opt.gravity, float))
+    spring_on = not flags & int(dsbl.mjDSBL_SPRING)
+    damper_on = not flags & int(dsbl.mjDSBL_DAMPER)
+    body_names, taken_bodies, taken_joints = [], set(), set()
+    bodies, joints = [], []
+    for b in range(1, m.nbody):
+        name = _unique(_name(m, obj.mjOBJ_BODY, b, "body"), taken_bodies)
+        body_names.append(name)
+        if m.body_mocapid[b] >= 0:
+            raise UnsupportedFeatureError(f"body {name!r} is a mocap body; vdad has no "
+                                          f"mocap bodies")
+        mass = float(m.body_mass[b])
+        if not mass > 0:
+            raise UnsupportedFeatureError(f"body {name!r} has mass {mass}: every vdad body needs "
+                                          f"a positive mass; add an <inertial> element (or "
+                                          f"geoms with density) to it")
+        if m.body_gravcomp[b] != 0:
+            _unsupported(strict, f"body {name!r}: gravity compensation "
+                                 f"({m.body_gravcomp[b]}) is not supported")
+        R = quat_to_rot(np.asarray(m.body_iquat[b], dtype=float))
+        inertia = R @ np.diag(np.asarray(m.body_inertia[b], dtype=float)) @ R.T
+        bodies.append(Body(name, mass, tuple(float(x) for x in m.body_ipos[b]),
+                           0.5 * (inertia + inertia.T), _geoms(m, b, name)))
+        kind, stages, limits, jname, free = _joint_stages(m, b, name, taken_joints, strict,
+                                                          spring_on, damper_on)
+        placement = (Pose() if free else
+                     Pose(tuple(float(x) for x in m.body_pos[b]),
+                          tuple(float(x) for x in m.body_quat[b])))
+        p = m.body_parentid[b]
+        parent = None if p == 0 else body_names[p - 1]
+        if kind == "composite":
+            joint = Joint(jname, parent, name, "composite", placement=placement,
+                          stages=stages, limits=limits)
+        elif kind == "fixed":
+            joint = Joint(jname, parent, name, "fixed", placement=placement)
+        else:
+            s = stages[-1]
+            joint = Joint(jname, parent, name, kind, axis=s.axis, placement=placement,
+                          stiffness=s.stiffness, damping=s.damping, limits=limits)
+        joints.append(joint)
+    if not bodies:
+        raise ModelError("the MuJoCo model has no bodies besides the world")
+    model_name = bytes(m.names).split(b"\0", 1)[0].decode()   # the model name comes first
+    return Model(bodies, joints, gravity=gravity, q_spring=np.array(m.qpos_spring, float),
+                 name=model_name or "mujoco")
+
+
+def load_mjcf(path, **kw) -> Model:
+    """:func:`from_mujoco` of the MJCF file ``path`` (keyword arguments passed on)."""
+    import mujoco
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError(f"MJCF file not found: {path!r}")
+    try:
+        m = mujoco.MjModel.from_xml_path(path)
+    except ValueError as exc:
+        raise InputError(f"cannot load MJCF file {path!r}: {exc}") from None
+    return from_mujoco(m, **kw)
+
+
+# --- export ----------------------------------------------------------------------------
+
+def _principal_axes(inertia):
+    """Moments and quaternion (w,x,y,z) of a right-handed principal frame."""
+    moments, V = np.linalg.eigh(np.asarray(inertia, dtype=float))
+    if np.linalg.det(V) < 0:
+        V[:, 2] = -V[:, 2]
+    return moments, rot_to_quat(V)
+
+
+def _stage_limits(model, j):
+    """One (lo, hi) or None per stage of joint ``j`` from :attr:`Joint.limits`."""
+    n = int(model.n_stages_joint[j])
+    lim = model.joints[j].limits
+    if lim is None or n == 0:
+        return [None] * n
+    if n == 1 and len(lim) == 2 and all(np.isscalar(x) for x in lim):
+        return [tuple(float(x) for x in lim)]
+    if len(lim) != n:
+        raise ModelError(f"joint {model.joint_names[j]!r}: limits {lim} do not give one pair "
+                         f"(or None) per stage ({n} stages)")
+    return [None if x is None else tuple(float(y) for y in x) for x in lim]
+
+
+def _is_world_free(model, j, stages):
+    """Whether joint ``j`` maps onto one MuJoCo freejoint (1)."""
+    if len(stages) != 2 or model.parent[j] >= 0:
+        return False
+    t, b = stages
+    if model.stage_kind[t] != TRANSLATION or model.stage_kind[b] != BALL:
+        return False
+    return (np.array_equal(model.placement_R[j], np.eye(3)) and not np.any(model.placement_p[j])
+            and not np.any(model.stage_anchor[b])
+            and model.stage_stiffness[t] == model.stage_stiffness[b]
+            and model.stage_damping[t] == model.stage_damping[b])
+
+
+def _add_geom(spec, body, geom, tag):
+    import mujoco
+
+    gt = mujoco.mjtGeom
+    R, p = geom.pose.matrix()
+    common = dict(pos=p, quat=rot_to_quat(R), rgba=np.asarray(geom.rgba, dtype=float),
+                  contype=0, conaffinity=0)
+    if geom.kind == "mesh":
+        mesh = geom.mesh
+        spec.add_mesh(name=tag, uservert=np.asarray(mesh.vertices, float).ravel(),
+                      userface=np.asarray(mesh.faces, np.int32).ravel())
+        body.add_geom(type=gt.mjGEOM_MESH, meshname=tag, **common)
+        return
+    size = np.zeros(3)
+    size[:len(geom.size)] = geom.size
+    kind = {"sphere": gt.mjGEOM_SPHERE, "capsule": gt.mjGEOM_CAPSULE,
+            "cylinder": gt.mjGEOM_CYLINDER, "box": gt.mjGEOM_BOX}[geom.kind]
+    body.add_geom(type=kind, size=size, **common)
+
+
+def to_mjspec(model):
+    """A ``mujoco.MjSpec`` of ``model`` whose joints are vdad's stages one by one.
+
+    Every hinge/slide/ball stage becomes one MuJoCo joint of the child body (axis,
+    anchor as ``pos``, ``ref``, stiffness, damping, ``springref``); a translation
+    stage three slides along the joint frame's axes, except that translation +
+    ball of a world-rooted free joint with identity placement becomes one
+    ``freejoint``. Body ``pos``/``quat`` are the joint placement; inertial data
+    come from the eigen-decomposition of the inertia (right-handed). Joint
+    limits are copied but MuJoCo's limit constraints, like contacts, are
+    disabled (vdad does not enforce them). Geometries are added without
+    collisions. The spring reference of ball and free stages cannot be given in
+    a spec: :func:`to_mujoco` writes ``qpos_spring`` after compiling.
+    """
+    import mujoco
+
+    spec = mujoco.MjSpec()
+    spec.modelname = model.name
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    spec.compiler.alignfree = False
+    spec.compiler.degree = False                 # ref, springref, range in radians
+    spec.compiler.autolimits = True
+    spec.option.gravity = np.asarray(model.gravity, dtype=float)
+    dsbl = mujoco.mjtDisableBit
+    spec.option.disableflags |= int(dsbl.mjDSBL_CONTACT) | int(dsbl.mjDSBL_LIMIT)
+    spec.nuser_body = 1
+    jt = mujoco.mjtJoint
+    handles = []
+    for i in range(model.nb):
+        parent = spec.worldbody if model.parent[i] < 0 else handles[model.parent[i]]
+        stages = np.flatnonzero(model.stage_joint == i)
+        moments, iquat = _principal_axes(model.inertia[i])
+        body = parent.add_body(name=model.body_names[i], pos=model.placement_p[i],
+                               quat=rot_to_quat(model.placement_R[i]))
+        body.mass = float(model.mass[i])
+        body.ipos = np.asarray(model.com[i], dtype=float)
+        body.iquat = iquat
+        body.inertia = moments
+        body.explicitinertial = True
+        body.userdata = [float(i)]
+        handles.append(body)
+        name = model.joint_names[i]
+        if _is_world_free(model, i, stages):
+            t = stages[0]
+            fj = body.add_freejoint(name=name)
+            fj.stiffness = [model.stage_stiffness[t], 0.0, 0.0]
+            fj.damping = [model.stage_damping[t], 0.0, 0.0]
+            fj.align = mujoco.mjtAlignFree.mjALIGNFREE_FALSE
+        else:
+            limits = _stage_limits(model, i)
+            for r, s in enumerate(stages):
+                kind, q0 = model.stage_kind[s], model.stage_q[s]
+                k, d = model.stage_stiffness[s], model.stage_damping[s]
+                jname = name if r == 0 else f"{name}:{r}"
+                common = dict(stiffness=[k, 0.0, 0.0], damping=[d, 0.0, 0.0])
+                if kind == TRANSLATION:
+                    for c in range(3):
+                        body.add_joint(name=f"{jname}:{'xyz'[c]}" if c else jname,
+                                       type=jt.mjJNT_SLIDE, axis=np.eye(3)[c],
+                                       springref=model.q_spring[q0 + c], **common)
+                    continue
+                if kind == BALL:
+                    joint = body.add_joint(name=jname, type=jt.mjJNT_BALL,
+                                           pos=model.stage_anchor[s], **common)
+                else:
+                    joint = body.add_joint(name=jname,
+                                           type=jt.mjJNT_HINGE if kind == HINGE
+                                           else jt.mjJNT_SLIDE,
+                                           axis=model.stage_axis[s], pos=model.stage_anchor[s],
+                                           ref=model.stage_ref[s],
+                                           springref=model.q_spring[q0], **common)
+                if limits[r] is not None:
+                    joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+                    joint.range = np.asarray(limits[r], dtype=float)
+        for g, geom in enumerate(model.bodies[i].geoms):
+            _add_geom(spec, body, geom, f"{model.body_names[i]}:geom{g}")
+    spec.add_text(name=LAYOUT_TEXT, data="body_user[:, 0] is the vdad body index")
+    return spec
+
+
+def mujoco_layout(m):
+    """Index maps between vdad's and MuJoCo's layouts of ``m``.
+
+    Returns ``body`` (nb,), ``qpos`` (nq,) and ``qvel`` (nv,): the MuJoCo body id of
+    vdad body ``i`` and the ``qpos``/``qvel`` index of each vdad ``q``/``qd``
+    entry. Identity (``body = 1..nbody-1``) unless ``m`` came from :func:`to_mujoco`.
+    """
+    import mujoco
+
+    nb = m.nbody - 1
+    if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXT, LAYOUT_TEXT) < 0:
+        return np.arange(1, nb + 1), np.arange(m.nq), np.arange(m.nv)
+    body = np.empty(nb, dtype=int)
+    body[np.asarray(m.body_user[1:, 0]).round().astype(int)] = np.arange(1, nb + 1)
+    qpos, qvel = [], []
+    nq_jnt = np.array([7, 4, 1, 1])[m.jnt_type]
+    nv_jnt = np.array([6, 3, 1, 1])[m.jnt_type]
+    for b in body:
+        j0, nj = m.body_jntadr[b], m.body_jntnum[b]
+        if nj:
+            qpos.append(m.jnt_qposadr[j0] + np.arange(nq_jnt[j0:j0 + nj].sum()))
+            qvel.append(m.jnt_dofadr[j0] + np.arange(nv_jnt[j0:j0 + nj].sum()))
+    empty = [np.zeros(0, int)]
+    return body, np.concatenate(qpos + empty), np.concatenate(qvel + empty)
+
+
+def to_mujoco(model):
+    """``(mjModel, mjData)`` of :func:`to_mjspec` (``model``), with ``qpos_spring`` set."""
+    import mujoco
+
+    m = to_mjspec(model).compile()
+    _, qpos, _ = mujoco_layout(m)
+    m.qpos_spring[qpos] = model.q_spring
+    return m, mujoco.MjData(m)
+
+
+def mujoco_forward(mjmodel, mjdata, q, qd, tau=None, f_ext=None):
+    """MuJoCo's ``qacc`` in vdad's layout for vdad's state ``(q, qd)``.
+
+    Sets ``qpos``, ``qvel``, ``qfrc_applied`` (``tau``) and ``xfrc_applied``
+    (``f_ext`` (nb, 6): torque about the centre of mass, force; world axes (3)),
+    zeroes ``ctrl`` and calls ``mj_forward``.
+    """
+    import mujoco
+
+    m, d = mjmodel, mjdata
+    body, qpos, qvel = mujoco_layout(m)
+    q = check_vector("q", q, m.nq)
+    qd = check_vector("qd", qd, m.nv)
+    tau = check_vector("tau", tau, m.nv, allow_none=True)
+    d.qpos[qpos] = q
+    d.qvel[qvel] = qd
+    d.qfrc_applied[:] = 0.0
+    if tau is not None:
+        d.qfrc_applied[qvel] = tau
+    d.xfrc_applied[:] = 0.0
+    if f_ext is not None:
+        f_ext = np.asarray(f_ext, dtype=float)
+        if f_ext.shape != (len(body), 6) or not np.all(np.isfinite(f_ext)):
+            raise InputError(f"f_ext must be a finite ({len(body)}, 6) array, got shape "
+                             f"{f_ext.shape}")
+        d.xfrc_applied[body] = f_ext[:, _XFRC_FROM_FEXT]
+    if m.nu:
+        d.ctrl[:] = 0.0
+    mujoco.mj_forward(m, d)
+    return np.array(d.qacc[qvel])
+
+
+__all__ = ["from_mujoco", "load_mjcf", "mujoco_forward", "mujoco_layout", "to_mjspec",
+           "to_mujoco"]
