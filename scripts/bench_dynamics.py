@@ -1,0 +1,159 @@
+"""Time vdad.forward_dynamics against pin.aba and mujoco.mj_forward in one run.
+
+Models: pendulum chains of 20, 300 and 1000 bodies and a forest of 100
+sixteen-body dog-shaped trees on free joints (1600 bodies). Writes
+``docs/bench_dynamics.json`` and the table between the markers of
+``docs/benchmarks.md``. Usage: ``python scripts/bench_dynamics.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+import vdad
+from vdad import dca
+from vdad.dynamics import default_tree
+from vdad.scenes import pendulum
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+MARK = ("<!-- bench_dynamics:start -->", "<!-- bench_dynamics:end -->")
+
+
+def dog_forest(n_dogs=100):
+    """``n_dogs`` free-floating trees of 16 bodies: torso, neck, head, tail and four
+    three-link legs, joined by revolute joints (a stand-in until the dog scene)."""
+    bodies, joints = [], []
+    inertia = np.diag([0.02, 0.02, 0.01])
+    for d in range(n_dogs):
+        def add(name, parent, pos, axis=(0, 1, 0), d=d):
+            bodies.append(vdad.Body(f"d{d}_{name}", 0.5, (0, 0, -0.05), inertia))
+            kind = "free" if parent is None else "revolute"
+            parent = None if parent is None else f"d{d}_{parent}"
+            joints.append(vdad.Joint(f"d{d}_{name}_j", parent, f"d{d}_{name}", kind, axis=axis,
+                                     placement=vdad.Pose(pos)))
+        add("torso", None, (2.0 * (d % 10), 2.0 * (d // 10), 1.0))
+        add("neck", "torso", (0.3, 0, 0.05))
+        add("head", "neck", (0.1, 0, 0.1), (0, 0, 1))
+        add("tail", "torso", (-0.3, 0, 0.05), (0, 0, 1))
+        for leg, (x, y) in enumerate([(0.25, 0.1), (0.25, -0.1), (-0.25, 0.1), (-0.25, -0.1)]):
+            add(f"leg{leg}a", "torso", (x, y, -0.05), (1, 0, 0))
+            add(f"leg{leg}b", f"leg{leg}a", (0, 0, -0.15))
+            add(f"leg{leg}c", f"leg{leg}b", (0, 0, -0.15))
+    return vdad.Model(bodies, joints, name=f"{n_dogs}dogs")
+
+
+def median_us(fn, budget_s):
+    fn()
+    t0 = time.perf_counter()
+    fn()
+    once = max(time.perf_counter() - t0, 1e-7)
+    number = max(1, int(0.05 / once))
+    repeats = max(3, min(25, int(budget_s / (once * number)) or 3))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn()
+        times.append((time.perf_counter() - t0) / number)
+    return 1e6 * statistics.median(times)
+
+
+def time_vdad(model, q, qd, budget):
+    tree = default_tree(model)
+    data = dca.make_data(tree)
+    return median_us(lambda: vdad.forward_dynamics(model, q, qd, tree=tree, data=data), budget)
+
+
+def time_pinocchio(model, q, qd, budget):
+    import pinocchio as pin
+
+    from vdad.interop.pinocchio import to_pinocchio
+
+    try:
+        pm = to_pinocchio(model)
+        pd = pm.createData()
+    except (MemoryError, RuntimeError) as exc:
+        return None, f"cannot allocate ({type(exc).__name__})"
+    qp = pin.neutral(pm)
+    vp = np.random.default_rng(0).normal(size=pm.nv)
+    tau = np.zeros(pm.nv)
+    return median_us(lambda: pin.aba(pm, pd, qp, vp, tau), budget), ""
+
+
+def time_mujoco(model, budget):
+    import mujoco
+
+    from vdad.interop.mujoco import to_mujoco
+
+    try:
+        m, d = to_mujoco(model)
+    except Exception as exc:  # noqa: BLE001 (MuJoCo raises ValueError or its own errors)
+        return None, f"does not compile ({str(exc).splitlines()[0][:60]})"
+    d.qvel[:] = np.random.default_rng(0).normal(size=m.nv)
+    return median_us(lambda: mujoco.mj_forward(m, d), budget), ""
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="short timing budget")
+    parser.add_argument("--out", default=str(DOCS / "bench_dynamics.json"))
+    args = parser.parse_args(argv)
+    budget = 0.5 if args.quick else 3.0
+    cases = [("chain 20", pendulum(20).model), ("chain 300", pendulum(300).model),
+             ("chain 1000", pendulum(1000).model), ("100 dogs (1600 bodies)", dog_forest())]
+    rows = []
+    for label, model in cases:
+        rng = np.random.default_rng(1)
+        q = np.array(model.q_neutral)
+        qd = rng.normal(size=model.nv) * 0.1
+        t_vdad = time_vdad(model, q, qd, budget)
+        t_pin, pin_note = time_pinocchio(model, q, qd, budget)
+        t_mj, mj_note = time_mujoco(model, budget)
+        row = dict(model=label, bodies=model.nb, dofs=model.nv,
+                   levels=len(default_tree(model).levels), vdad_us=t_vdad,
+                   pinocchio_us=t_pin, mujoco_us=t_mj,
+                   vdad_over_pinocchio=None if t_pin is None else t_vdad / t_pin,
+                   vdad_over_mujoco=None if t_mj is None else t_vdad / t_mj,
+                   notes="; ".join(x for x in (pin_note and f"pin: {pin_note}",
+                                               mj_note and f"mujoco: {mj_note}") if x))
+        rows.append(row)
+        print(json.dumps(row))
+    result = dict(machine=f"{platform.processor() or platform.machine()}, "
+                  f"{__import__('os').cpu_count()} cores", python=platform.python_version(),
+                  numpy=np.__version__, quick=args.quick, rows=rows)
+    Path(args.out).write_text(json.dumps(result, indent=1))
+    write_table(rows, result)
+
+
+def fmt(x, digits=1):
+    return "—" if x is None else f"{x:,.{digits}f}"
+
+
+def write_table(rows, result):
+    lines = [MARK[0], "",
+             f"Median µs per call; Python {result['python']}, numpy {result['numpy']}, "
+             f"{result['machine']}{' (quick run)' if result['quick'] else ''}.", "",
+             "| model | bodies | levels | vdad DCA | pin.aba | mj_forward | vdad / pin | "
+             "vdad / MuJoCo | notes |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['model']} | {r['bodies']} | {r['levels']} | {fmt(r['vdad_us'])} | "
+                     f"{fmt(r['pinocchio_us'])} | {fmt(r['mujoco_us'])} | "
+                     f"{fmt(r['vdad_over_pinocchio'], 2)} | {fmt(r['vdad_over_mujoco'], 2)} | "
+                     f"{r['notes']} |")
+    lines += ["", MARK[1]]
+    path = DOCS / "benchmarks.md"
+    text = path.read_text() if path.exists() else "# Benchmarks\n\n" + MARK[0] + MARK[1] + "\n"
+    start, end = text.index(MARK[0]), text.index(MARK[1]) + len(MARK[1])
+    path.write_text(text[:start] + "\n".join(lines) + text[end:])
+
+
+if __name__ == "__main__":
+    main()
