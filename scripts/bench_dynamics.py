@@ -71,20 +71,35 @@ def time_vdad(model, q, qd, budget):
     return median_us(lambda: vdad.forward_dynamics(model, q, qd, tree=tree, data=data), budget)
 
 
-def time_pinocchio(model, q, qd, budget):
+# pin.Model.createData allocates nv^3 tensors: 13 GB at 600 dofs (anchors.md §1)
+PIN_BYTES_AT_600 = 13e9
+
+
+def time_pinocchio(model, budget, copies=1):
+    """pin.aba on ``model`` (called ``copies`` times per sample, for forests of
+    identical trees); refused where createData would not fit in memory."""
+    import os
+
     import pinocchio as pin
 
     from vdad.interop.pinocchio import to_pinocchio
 
-    try:
-        pm = to_pinocchio(model)
-        pd = pm.createData()
-    except (MemoryError, RuntimeError) as exc:
-        return None, f"cannot allocate ({type(exc).__name__})"
+    need = PIN_BYTES_AT_600 * (model.nv / 600) ** 3
+    available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    if need > 0.5 * available:
+        return None, f"pin: cannot allocate (createData needs ~{need / 1e9:.0f} GB)"
+    pm = to_pinocchio(model)
+    pd = pm.createData()
     qp = pin.neutral(pm)
     vp = np.random.default_rng(0).normal(size=pm.nv)
     tau = np.zeros(pm.nv)
-    return median_us(lambda: pin.aba(pm, pd, qp, vp, tau), budget), ""
+
+    def call():
+        for _ in range(copies):
+            pin.aba(pm, pd, qp, vp, tau)
+
+    note = f"pin: {copies} calls on one tree" if copies > 1 else ""
+    return median_us(call, budget), note
 
 
 def time_mujoco(model, budget):
@@ -95,7 +110,7 @@ def time_mujoco(model, budget):
     try:
         m, d = to_mujoco(model)
     except Exception as exc:  # noqa: BLE001 (MuJoCo raises ValueError or its own errors)
-        return None, f"does not compile ({str(exc).splitlines()[0][:60]})"
+        return None, f"mujoco: does not compile ({str(exc).splitlines()[0][:60]})"
     d.qvel[:] = np.random.default_rng(0).normal(size=m.nv)
     return median_us(lambda: mujoco.mj_forward(m, d), budget), ""
 
@@ -106,23 +121,26 @@ def main(argv=None):
     parser.add_argument("--out", default=str(DOCS / "bench_dynamics.json"))
     args = parser.parse_args(argv)
     budget = 0.5 if args.quick else 3.0
-    cases = [("chain 20", pendulum(20).model), ("chain 300", pendulum(300).model),
-             ("chain 1000", pendulum(1000).model), ("100 dogs (1600 bodies)", dog_forest())]
+    cases = [("chain 20", pendulum(20).model, None), ("chain 300", pendulum(300).model, None),
+             ("chain 1000", pendulum(1000).model, None),
+             ("100 dogs (1600 bodies)", dog_forest(), dog_forest(1))]
     rows = []
-    for label, model in cases:
+    for label, model, one_tree in cases:
         rng = np.random.default_rng(1)
         q = np.array(model.q_neutral)
         qd = rng.normal(size=model.nv) * 0.1
         t_vdad = time_vdad(model, q, qd, budget)
-        t_pin, pin_note = time_pinocchio(model, q, qd, budget)
+        if one_tree is None:
+            t_pin, pin_note = time_pinocchio(model, budget)
+        else:
+            t_pin, pin_note = time_pinocchio(one_tree, budget, copies=model.nb // one_tree.nb)
         t_mj, mj_note = time_mujoco(model, budget)
         row = dict(model=label, bodies=model.nb, dofs=model.nv,
                    levels=len(default_tree(model).levels), vdad_us=t_vdad,
                    pinocchio_us=t_pin, mujoco_us=t_mj,
                    vdad_over_pinocchio=None if t_pin is None else t_vdad / t_pin,
                    vdad_over_mujoco=None if t_mj is None else t_vdad / t_mj,
-                   notes="; ".join(x for x in (pin_note and f"pin: {pin_note}",
-                                               mj_note and f"mujoco: {mj_note}") if x))
+                   notes="; ".join(x for x in (pin_note, mj_note) if x))
         rows.append(row)
         print(json.dumps(row))
     result = dict(machine=f"{platform.processor() or platform.machine()}, "

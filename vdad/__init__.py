@@ -7,6 +7,7 @@ when a function needs them.
 from .assembly import AssemblyTree
 from .dynamics import forward_dynamics, passive_forces
 from .errors import InputError, ModelError, SimulationError, UnsupportedFeatureError, VdadError
+from .interop.mujoco import from_mujoco, load_mjcf
 from .model import Body, Geom, Joint, Model, Pose
 from .simulator import Simulator
 
@@ -15,5 +16,5 @@ __version__ = "0.1.0"
 __all__ = [
     "AssemblyTree", "Body", "Geom", "InputError", "Joint", "Model", "ModelError", "Pose",
     "SimulationError", "Simulator", "UnsupportedFeatureError", "VdadError", "forward_dynamics",
-    "passive_forces",
+    "from_mujoco", "load_mjcf", "passive_forces",
 ]

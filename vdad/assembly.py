@@ -31,6 +31,14 @@ GROUND = -1
 ZERO, TRASH = 0, 1
 
 
+def _find(parent, i):
+    """Root of ``i`` in the union-find forest ``parent`` (path halving)."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
 @dataclass(frozen=True)
 class Level:
     """Gather/scatter plan of the internal nodes of one height (k nodes, P ports)."""
@@ -85,13 +93,6 @@ class AssemblyTree:
         self.model = model
         # cluster bookkeeping: union-find over bodies; ground leaves are separate
         find_parent = list(range(nb))
-
-        def find(i):
-            while find_parent[i] != i:
-                find_parent[i] = find_parent[find_parent[i]]
-                i = find_parent[i]
-            return i
-
         node_of = list(range(nb))          # cluster root body -> node id
         ports = [[(i, +1)] + [(int(c), -1) for c in model.children[i]] for i in range(nb)]
         height = [0] * nb
@@ -101,9 +102,9 @@ class AssemblyTree:
             if p < 0:
                 a_node, a_ports, a_h = GROUND, [(j, -1)], 0
             else:
-                ra = find(p)
+                ra = _find(find_parent, p)
                 a_node, a_ports, a_h = node_of[ra], ports[node_of[ra]], height[node_of[ra]]
-            rb = find(j)
+            rb = _find(find_parent, j)
             b_node = node_of[rb]
             node = nb + len(joint)
             left.append(a_node)
@@ -142,13 +143,6 @@ class AssemblyTree:
         nb = model.nb
         parent = model.parent
         uf = list(range(nb))
-
-        def find(i):
-            while uf[i] != i:
-                uf[i] = uf[uf[i]]
-                i = uf[i]
-            return i
-
         nports = np.array([1 + len(model.children[i]) for i in range(nb)])
         size = np.ones(nb, int)
         grounded = np.zeros(nb, bool)      # cluster root -> already holds its ground leaf
@@ -157,11 +151,11 @@ class AssemblyTree:
         while remaining:
             cand = []
             for j in remaining:
-                b = find(j)
+                b = _find(uf, j)
                 if parent[j] < 0:
                     cand.append((nports[b] - 1, size[b] + 1, j, -1 - j, b))
                 else:
-                    a = find(parent[j])
+                    a = _find(uf, parent[j])
                     cand.append((nports[a] + nports[b] - 2, size[a] + size[b], j, a, b))
             cand.sort()
             used = set()
