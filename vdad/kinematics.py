@@ -91,13 +91,13 @@ def plan(model) -> KinematicPlan:
     W = np.zeros((nb, 6, 6))
     T_pad_eye = np.zeros((nb, 6, 6))
     dof_index = np.full((nb, 6), model.nv)
+    first_stage = np.concatenate([[0], np.cumsum(model.n_stages_joint)[:-1]])
     for j in range(nb):
         d = model.nv_joint[j]
         dof_index[j, :d] = model.v_start[j] + np.arange(d)
         T_pad_eye[j, range(6 - d, 6), range(6 - d, 6)] = 1.0
-        stages = np.flatnonzero(model.stage_joint == j)
-        if len(stages) == 1:
-            S[j, :, :d] = s_pad[stages[0], :, :d]
+        if model.n_stages_joint[j] == 1:
+            S[j, :, :d] = s_pad[first_stage[j], :, :d]
     for d in np.unique(model.nv_joint):
         js = np.flatnonzero((model.nv_joint == d) & ~multi)
         if len(js):
