@@ -13,10 +13,10 @@ A port is ``(joint, side)``: side ``+1`` if the sub-assembly holds the joint's
 child body, ``-1`` if it holds the parent. Each node's ports are ordered
 ``alpha`` (from ``A``) then ``beta`` (from ``B``), as in (T11).
 
-The tree precomputes, per batch of nodes of equal height and equal port count
-(``levels``: bottom-up; splitting a height by port count avoids padding small
-nodes to the largest), the index arrays that gather a batch's inputs from and
-scatter its outputs to flat block stores (``Phi``:
+The tree precomputes, per batch of internal nodes of equal height (``levels``,
+bottom-up; a height is split by port count where padding small nodes to the
+largest would more than double its work), the index arrays that gather a
+batch's inputs from and scatter its outputs to flat block stores (``Phi``:
 (nblocks, 6, 6), ``b``: (nslots, 6)); slot 0 is a zero block read for padding
 and ground leaves, slot 1 a trash slot written by padding.
 """
@@ -43,7 +43,7 @@ def _find(parent, i):
 
 @dataclass(frozen=True)
 class Level:
-    """Gather/scatter plan of a batch of k internal nodes of one height and P ports."""
+    """Gather/scatter plan of a batch of k internal nodes of one height (P: most ports)."""
 
     nodes: np.ndarray       # (k,) internal node ids
     joint: np.ndarray       # (k,) joint of each node
@@ -236,13 +236,19 @@ class AssemblyTree:
         levels = []
         internal_height = self.height[nb:]
         n_ports = np.array([len(self.ports[nb + i]) for i in range(len(self.joint))], int)
-        batches = [np.flatnonzero((internal_height == h) & (n_ports == P))
-                   for h in range(1, self.depth + 1) for P in np.unique(n_ports)]
+        batches = []
+        for h in range(1, self.depth + 1):
+            ids = np.flatnonzero(internal_height == h)
+            P = n_ports[ids]
+            # one batch padded to the largest port count, unless padding would more
+            # than double its block work; then one batch per port count
+            if len(ids) * P.max() ** 2 <= 2 * np.sum(P**2) + 16:
+                batches.append(ids)
+            else:
+                batches += [ids[P == p] for p in np.unique(P)]
         for ids in batches:
-            if len(ids) == 0:
-                continue
             k = len(ids)
-            P = n_ports[ids[0]]
+            P = n_ports[ids].max()
             arr = {name: np.zeros((k, P) if name in ("G", "sign", "b0", "out_b", "port_joint",
                                                      "port_side") else (k, P, P), int)
                    for name in ("Phi0", "G", "sign", "b0", "out_Phi", "out_b", "port_joint",

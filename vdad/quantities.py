@@ -49,11 +49,8 @@ def spatial_momentum(model, q, qd):
     kin = kinematics(model, q, qd)
     w_body = kin.v[:, :3]
     vc_body = kin.v[:, 3:] + cross3(w_body, model.com)
-    w = mv(kin.R, w_body)
     vc = mv(kin.R, vc_body)
     c = kin.p + mv(kin.R, model.com)
-    L_com = mv(kin.R,
-                      mv(model.inertia, w_body))
+    L_com = mv(kin.R, mv(model.inertia, w_body))
     p = model.mass[:, None] * vc
-    return np.concatenate([np.sum(L_com + cross3(c, p), axis=0), np.sum(p, axis=0)]) \
-        if len(w) else np.zeros(6)
+    return np.concatenate([np.sum(L_com + cross3(c, p), axis=0), np.sum(p, axis=0)])
