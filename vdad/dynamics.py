@@ -49,24 +49,31 @@ def check_wrenches(model, f_ext):
     return a
 
 
-def passive_forces(model, q, qd):
-    """Joint spring and damper forces (nv,): ``-K (q - q_spring) - D qd`` per stage.
-
-    Ball stages use the rotation vector of ``q_spring^-1 q`` (as MuJoCo).
-    """
-    tau = np.zeros(model.nv)
-    k = model.stage_stiffness
-    for s in np.flatnonzero(k > 0):
+def spring_displacements(model, q):
+    """``(k, dofs, d)`` for every stage with a spring: stiffness, its velocity
+    indices and its displacement from ``q_spring`` (ball: the rotation vector of
+    ``q_spring^-1 q``, as MuJoCo). The spring force is ``-k d``, its energy
+    ``k |d|^2 / 2``."""
+    out = []
+    for s in np.flatnonzero(model.stage_stiffness > 0):
         kind, iq, iv = model.stage_kind[s], model.stage_q[s], model.stage_v[s]
-        if kind in (J.HINGE, J.SLIDE):
-            tau[iv] -= k[s] * (q[iq] - model.q_spring[iq])
-        elif kind == J.BALL:
-            qs = model.q_spring[iq:iq + 4] * np.array([1, -1, -1, -1])
-            qn = q[iq:iq + 4] / np.linalg.norm(q[iq:iq + 4])
-            tau[iv:iv + 3] -= k[s] * quat_log(quat_mul(qs, qn))
+        n = J.STAGE_NV[kind]
+        if kind == J.BALL:
+            conj = model.q_spring[iq:iq + 4] * np.array([1, -1, -1, -1])
+            d = quat_log(quat_mul(conj, q[iq:iq + 4] / np.linalg.norm(q[iq:iq + 4])))
         else:
-            tau[iv:iv + 3] -= k[s] * (q[iq:iq + 3] - model.q_spring[iq:iq + 3])
-    return tau - _damping(model) * qd
+            d = q[iq:iq + n] - model.q_spring[iq:iq + n]
+        out.append((model.stage_stiffness[s], slice(iv, iv + n), d))
+    return out
+
+
+def passive_forces(model, q, qd):
+    """Joint spring and damper forces (nv,): ``-K d - D qd`` per stage, with the
+    displacements ``d`` of :func:`spring_displacements`."""
+    tau = -_damping(model) * qd
+    for k, dofs, d in spring_displacements(model, q):
+        tau[dofs] -= k * d
+    return tau
 
 
 @lru_cache(maxsize=64)

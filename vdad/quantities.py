@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import joints as J
+from .dynamics import spring_displacements
 from .kinematics import kinematics
-from .spatial import cross3, mv, quat_log, quat_mul
+from .spatial import cross3, mv
 
 
 def kinetic_energy(model, q, qd):
@@ -27,14 +27,7 @@ def potential_energy(model, q):
     kin = kinematics(model, q, np.zeros(model.nv))
     c = kin.p + mv(kin.R, model.com)
     energy = -float(np.sum(model.mass * (c @ model.gravity)))
-    for s in np.flatnonzero(model.stage_stiffness > 0):
-        kind, iq, k = model.stage_kind[s], model.stage_q[s], model.stage_stiffness[s]
-        if kind == J.BALL:
-            qs = model.q_spring[iq:iq + 4] * np.array([1, -1, -1, -1])
-            d = quat_log(quat_mul(qs, q[iq:iq + 4] / np.linalg.norm(q[iq:iq + 4])))
-        else:
-            n = J.STAGE_NV[kind]
-            d = q[iq:iq + n] - model.q_spring[iq:iq + n]
+    for k, _, d in spring_displacements(model, q):
         energy += 0.5 * k * float(np.dot(d, d))
     return energy
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..model import Body, Geom, Joint, Model, Pose
+from ..spatial import quat_exp
 from .base import Scene
 
 
@@ -37,13 +38,15 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
     inertia = np.diag([Ixx, Ixx, m * r**2 / 2])
     geom = Geom("capsule", (r, L / 2 - r if L > 2 * r else L / 2),
                 Pose((0.0, 0.0, -L / 2)))
+    def axis_of(i):
+        return np.array([1.0, 0.0, 0.0] if axes == "alternate" and i % 2 else [0.0, 1.0, 0.0])
+
     bodies, joints = [], []
     for i in range(n):
-        axis = (1.0, 0.0, 0.0) if axes == "alternate" and i % 2 else (0.0, 1.0, 0.0)
         bodies.append(Body(f"link{i}", m, (0.0, 0.0, -L / 2), inertia, (geom,)))
         joints.append(Joint(f"joint{i}", None if i == 0 else f"link{i - 1}", f"link{i}", joint,
-                            axis=axis, placement=Pose((0.0, 0.0, 0.0 if i == 0 else -L)),
-                            damping=damping))
+                            axis=tuple(axis_of(i)), damping=damping,
+                            placement=Pose((0.0, 0.0, 0.0 if i == 0 else -L))))
     model = Model(bodies, joints, gravity=(0.0, 0.0, -gravity), name=f"pendulum{n}")
     q0 = np.array(model.q_neutral)
     first = [(0, angle)] + ([(1, angle / 2)] if axes == "alternate" and n > 1 else [])
@@ -52,8 +55,7 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
         if joint == "revolute":
             q0[i] = a
         else:
-            ax = np.array([1.0, 0, 0]) if (axes == "alternate" and j % 2) else np.array([0, 1.0, 0])
-            q0[i:i + 4] = np.concatenate([[np.cos(a / 2)], np.sin(a / 2) * ax])
+            q0[i:i + 4] = quat_exp(a * axis_of(j))
     return Scene("pendulum", f"{n}-link pendulum of {L} m, {m} kg capsule links, released from "
                  f"{angle} rad", model, q0, np.zeros(model.nv), dt,
                  params=dict(n_bodies=n, link_length=L, link_mass=m, radius=r, angle=angle,
