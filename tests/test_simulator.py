@@ -35,10 +35,14 @@ def test_semi_implicit_euler_energy_stays_bounded():
     assert errors[-5:].mean() < 3 * errors[:5].mean() + 1e-4  # no secular drift
 
 
-def test_momentum_balance_of_a_free_system():
-    """d/dt h = sum of external wrenches, without gravity (to 1e-10)."""
-    model = random_chain(4, n=8, root="free", gravity=(0.0, 0.0, 0.0))
-    rng = np.random.default_rng(4)
+@pytest.mark.parametrize("seed", [4, 5, 6])
+def test_momentum_balance_of_a_free_system(seed):
+    """d/dt h = sum of external wrenches, without gravity, to 1e-10 relative.
+
+    d/dt h along the exact dynamics is a Richardson-extrapolated central
+    difference (measured error of that estimate: 1e-11 to 3e-11)."""
+    model = random_chain(seed, n=8, root="free", gravity=(0.0, 0.0, 0.0))
+    rng = np.random.default_rng(seed)
     q, qd = random_configuration(model, rng), rng.normal(size=model.nv)
     f_ext = rng.normal(size=(model.nb, 6))
     qdd = vdad.forward_dynamics(model, q, qd, f_ext=f_ext)
@@ -56,7 +60,7 @@ def test_momentum_balance_of_a_free_system():
     c = kin.p + np.einsum("kij,kj->ki", kin.R, model.com)
     expected = np.concatenate([np.sum(f_ext[:, :3] + np.cross(c, f_ext[:, 3:]), axis=0),
                                np.sum(f_ext[:, 3:], axis=0)])
-    assert np.abs(rate - expected).max() < 1e-10 * np.abs(expected).max() * 1e2
+    assert np.abs(rate - expected).max() < 1e-10 * np.abs(expected).max()
 
 
 def test_momentum_is_conserved_without_forces():
