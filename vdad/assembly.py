@@ -59,6 +59,18 @@ class Level:
     out_b: np.ndarray       # (k, P) slots of b^C
     port_joint: np.ndarray  # (k, P) joint of each port (nj: padding)
     port_side: np.ndarray   # (k, P) side of each port (0: padding)
+    node: np.ndarray        # (k,) node id (nb + internal index)
+    node_A: np.ndarray      # (k,) node id of A (n_nodes: ground) and of B, and of
+    node_B: np.ndarray      #   the parent node (n_nodes: none), for node stores
+    node_up: np.ndarray
+
+    def restrict(self, rows, joint_map):
+        """The batch of ``rows`` only, with joints renumbered by ``joint_map``
+        (joint -> local index; its last entry maps the padding joint ``nj``)."""
+        fields = {name: getattr(self, name)[rows] for name in self.__dataclass_fields__}
+        fields["joint"] = joint_map[fields["joint"]]
+        fields["port_joint"] = joint_map[fields["port_joint"]]
+        return Level(**fields)
 
 
 @dataclass(frozen=True)
@@ -82,7 +94,12 @@ class AssemblyTree:
     Attributes: ``left``, ``right``, ``joint`` (internal nodes; children are
     body ids ``0..nb-1``, ``GROUND`` or ``nb + internal index``), ``height``,
     ``levels`` (bottom-up list of :class:`Level` batches), ``leaves`` (:class:`LeafPlan`),
-    ``ports`` (per node), ``n_blocks``, ``n_slots``.
+    ``ports`` (per node), ``n_blocks``, ``n_slots``, ``n_nodes`` (bodies and
+    internal nodes), ``up`` (parent node of every node, -1 at the roots),
+    ``top`` (top body of every node: the body whose parent is outside it; -1 when
+    the node holds a ground leaf), ``n_ports`` (per node), ``block_base``,
+    ``slot_base`` (per node: its first block and slot), ``slot_joint``,
+    ``slot_side`` (per slot: its port).
     """
 
     def __init__(self, model, order):
@@ -126,6 +143,15 @@ class AssemblyTree:
         self.height = np.array(height, int)
         self.ports = tuple(tuple(p) for p in ports)
         self.depth = int(max(height))
+        self.n_nodes = nb + len(joint)
+        up = np.full(self.n_nodes, -1)
+        top = np.arange(self.n_nodes)
+        for i, (a, b) in enumerate(zip(left, right, strict=True)):
+            up[b] = nb + i
+            if a != GROUND:
+                up[a] = nb + i
+            top[nb + i] = -1 if a == GROUND else top[a]
+        self.up, self.top = up, top
         self._plan()
 
     @staticmethod
@@ -203,6 +229,12 @@ class AssemblyTree:
             nslt += P
         self.n_blocks, self.n_slots = nblk, nslt
         self.block_base, self.slot_base = block_base, slot_base
+        self.n_ports = np.array([len(p) for p in self.ports], int)
+        self.slot_joint = np.full(nslt, nj)      # (joint, side) of every port slot
+        self.slot_side = np.zeros(nslt, int)
+        for n in range(n_nodes):
+            for a, (j, side) in enumerate(self.ports[n]):
+                self.slot_joint[slot_base[n] + a], self.slot_side[slot_base[n] + a] = j, side
 
         def port_index(node, port):
             return self.ports[node].index(port)
@@ -283,7 +315,11 @@ class AssemblyTree:
                     for b, (ch2, ib, _, _) in enumerate(origin):
                         arr["Phi0"][r, a, b] = block(ch, ia, ib) if ch2 == ch else ZERO
                         arr["out_Phi"][r, a, b] = block(node, a, b)
-            levels.append(Level(ids, self.joint[ids], WA, WB, bA, bB, **arr))
+            node = nb + ids
+            node_A = np.where(self.left[ids] == GROUND, n_nodes, self.left[ids])
+            node_up = np.where(self.up[node] < 0, n_nodes, self.up[node])
+            levels.append(Level(ids, self.joint[ids], WA, WB, bA, bB, **arr, node=node,
+                                node_A=node_A, node_B=self.right[ids], node_up=node_up))
         self.levels = tuple(levels)
 
     def __repr__(self):

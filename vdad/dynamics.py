@@ -15,7 +15,7 @@ from . import dca
 from . import joints as J
 from .assembly import AssemblyTree
 from .errors import InputError
-from .kinematics import kinematics
+from .kinematics import JointSet, kinematics, plan
 from .spatial import quat_log, quat_mul
 
 
@@ -49,40 +49,34 @@ def check_wrenches(model, f_ext):
     return a
 
 
-def spring_displacements(model, q):
+def spring_displacements(space, q):
     """``(k, dofs, d)`` for every stage with a spring: stiffness, its velocity
     indices and its displacement from ``q_spring`` (ball: the rotation vector of
     ``q_spring^-1 q``, as MuJoCo). The spring force is ``-k d``, its energy
-    ``k |d|^2 / 2``."""
+    ``k |d|^2 / 2``. ``space``: a model or a :class:`~vdad.kinematics.JointSet`
+    (``q`` in its local layout)."""
+    js = space if isinstance(space, JointSet) else plan(space)
     out = []
-    for s in np.flatnonzero(model.stage_stiffness > 0):
-        kind, iq, iv = model.stage_kind[s], model.stage_q[s], model.stage_v[s]
+    for s in np.flatnonzero(js.stage_stiffness > 0):
+        kind, iq, iv = js.stage_kind[s], js.stage_q[s], js.stage_v[s]
         n = J.STAGE_NV[kind]
         if kind == J.BALL:
-            conj = model.q_spring[iq:iq + 4] * np.array([1, -1, -1, -1])
+            conj = js.q_spring[iq:iq + 4] * np.array([1, -1, -1, -1])
             d = quat_log(quat_mul(conj, q[iq:iq + 4] / np.linalg.norm(q[iq:iq + 4])))
         else:
-            d = q[iq:iq + n] - model.q_spring[iq:iq + n]
-        out.append((model.stage_stiffness[s], slice(iv, iv + n), d))
+            d = q[iq:iq + n] - js.q_spring[iq:iq + n]
+        out.append((js.stage_stiffness[s], slice(iv, iv + n), d))
     return out
 
 
-def passive_forces(model, q, qd):
+def passive_forces(space, q, qd):
     """Joint spring and damper forces (nv,): ``-K d - D qd`` per stage, with the
-    displacements ``d`` of :func:`spring_displacements`."""
-    tau = -_damping(model) * qd
-    for k, dofs, d in spring_displacements(model, q):
+    displacements ``d`` of :func:`spring_displacements` (``space`` as there)."""
+    js = space if isinstance(space, JointSet) else plan(space)
+    tau = -js.damping * qd
+    for k, dofs, d in spring_displacements(js, q):
         tau[dofs] -= k * d
     return tau
-
-
-@lru_cache(maxsize=64)
-def _damping(model):
-    d = np.zeros(model.nv)
-    for s in range(model.ns):
-        nv = J.STAGE_NV[model.stage_kind[s]]
-        d[model.stage_v[s]:model.stage_v[s] + nv] = model.stage_damping[s]
-    return d
 
 
 @lru_cache(maxsize=64)
@@ -110,7 +104,6 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     tau_total = passive_forces(model, q, qd)
     if tau is not None:
         tau_total += tau
-    dca.leaves(model, tree, kin, dca.body_wrenches(model, kin, f_ext), data)
-    dca.assemble(model, tree, kin, np.append(tau_total, 0.0), data)
-    dca.back_substitute(model, tree, data)
+    dca.dca_pass(model, tree, kin, dca.body_wrenches(model, kin, f_ext),
+                 np.append(tau_total, 0.0), data)
     return data.qdd[:-1].copy()

@@ -9,35 +9,26 @@ MuJoCo's ``mj_integratePos``. The integrators take ``accel(t, q, qd) -> qdd``;
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
-from . import joints as J
 from .errors import InputError
+from .kinematics import JointSet, plan
 from .spatial import quat_exp, quat_mul
 
 
-@lru_cache(maxsize=64)
-def _layout(model):
-    """Index arrays: linear (q, v) pairs and ball (q: 4, v: 3) blocks."""
-    lin_q, lin_v, ball_q, ball_v = [], [], [], []
-    for s in range(model.ns):
-        kind, iq, iv = model.stage_kind[s], model.stage_q[s], model.stage_v[s]
-        if kind == J.BALL:
-            ball_q.append(iq + np.arange(4))
-            ball_v.append(iv + np.arange(3))
-        else:
-            n = J.STAGE_NV[kind]
-            lin_q.extend(range(iq, iq + n))
-            lin_v.extend(range(iv, iv + n))
-    return (np.array(lin_q, int), np.array(lin_v, int),
-            np.array(ball_q, int).reshape(-1, 4), np.array(ball_v, int).reshape(-1, 3))
+def _layout(space):
+    """The :class:`~vdad.kinematics.JointSet` of ``space`` (a model: all its joints)."""
+    return space if isinstance(space, JointSet) else plan(space)
 
 
-def integrate_configuration(model, q, v, dt):
-    """``q ⊕ v dt`` (nq,): the configuration reached by velocity ``v`` in ``dt``."""
-    lin_q, lin_v, ball_q, ball_v = _layout(model)
+def integrate_configuration(space, q, v, dt):
+    """``q ⊕ v dt`` (nq,): the configuration reached by velocity ``v`` in ``dt``.
+
+    ``space``: a model, or a :class:`~vdad.kinematics.JointSet` whose local state
+    ``(q, v)`` is given (the integrators below take the same first argument).
+    """
+    js = _layout(space)
+    lin_q, lin_v, ball_q, ball_v = js.lin_q, js.lin_v, js.ball_q, js.ball_v
     out = q.copy()
     out[lin_q] += v[lin_v] * dt
     if len(ball_q):
@@ -46,26 +37,27 @@ def integrate_configuration(model, q, v, dt):
     return out
 
 
-def normalize_configuration(model, q):
+def normalize_configuration(space, q):
     """``q`` with every quaternion renormalised."""
-    ball_q = _layout(model)[2]
+    ball_q = _layout(space).ball_q
     out = np.array(q, dtype=float)
     if len(ball_q):
         out[ball_q] /= np.linalg.norm(out[ball_q], axis=1, keepdims=True)
     return out
 
 
-def semi_implicit_euler(model, accel, t, q, qd, dt):
+def semi_implicit_euler(space, accel, t, q, qd, dt):
     """Symplectic Euler: ``qd += dt qdd(q, qd)``, then ``q ⊕= dt qd``."""
     qd_next = qd + dt * accel(t, q, qd)
-    return integrate_configuration(model, q, qd_next, dt), qd_next
+    return integrate_configuration(space, q, qd_next, dt), qd_next
 
 
-def configuration_rate(model, q, v):
+def configuration_rate(space, q, v):
     """``dq/dt`` (nq,) for velocity ``v``: ``v`` on linear stages and
     ``1/2 quat ⊗ (0, w)`` on ball stages (body-frame ``w``)."""
-    lin_q, lin_v, ball_q, ball_v = _layout(model)
-    rate = np.zeros(model.nq)
+    js = _layout(space)
+    lin_q, lin_v, ball_q, ball_v = js.lin_q, js.lin_v, js.ball_q, js.ball_v
+    rate = np.zeros(js.nq)
     rate[lin_q] = v[lin_v]
     if len(ball_q):
         pure = np.concatenate([np.zeros((len(ball_q), 1)), v[ball_v]], axis=1)
@@ -73,7 +65,7 @@ def configuration_rate(model, q, v):
     return rate
 
 
-def rk4(model, accel, t, q, qd, dt):
+def rk4(space, accel, t, q, qd, dt):
     """Classical Runge-Kutta 4 on ``(q, qd)``, quaternions in their embedding.
 
     Averaging body-frame angular velocities taken at different configurations
@@ -81,15 +73,15 @@ def rk4(model, accel, t, q, qd, dt):
     ``dq/dt = 1/2 q ⊗ (0, w)`` keeps fourth order. Quaternions are normalised
     when used and at the end of the step.
     """
-    k1q, k1v = configuration_rate(model, q, qd), accel(t, q, qd)
+    k1q, k1v = configuration_rate(space, q, qd), accel(t, q, qd)
     q2, v2 = q + dt / 2 * k1q, qd + dt / 2 * k1v
-    k2q, k2v = configuration_rate(model, q2, v2), accel(t + dt / 2, q2, v2)
+    k2q, k2v = configuration_rate(space, q2, v2), accel(t + dt / 2, q2, v2)
     q3, v3 = q + dt / 2 * k2q, qd + dt / 2 * k2v
-    k3q, k3v = configuration_rate(model, q3, v3), accel(t + dt / 2, q3, v3)
+    k3q, k3v = configuration_rate(space, q3, v3), accel(t + dt / 2, q3, v3)
     q4, v4 = q + dt * k3q, qd + dt * k3v
-    k4q, k4v = configuration_rate(model, q4, v4), accel(t + dt, q4, v4)
+    k4q, k4v = configuration_rate(space, q4, v4), accel(t + dt, q4, v4)
     q_next = q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q)
-    return (normalize_configuration(model, q_next),
+    return (normalize_configuration(space, q_next),
             qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v))
 
 

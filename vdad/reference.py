@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .dynamics import check_vector, check_wrenches, passive_forces
-from .kinematics import joint_kinematics, velocity_product
+from .kinematics import joint_kinematics, plan, velocity_product
 from .spatial import crf, crm, inertia_at_origin, pose_to_motion_transform
 
 
@@ -21,7 +21,7 @@ def _setup(model, q, qd, f_ext):
     q = check_vector("q", q, model.nq)
     qd = check_vector("qd", qd, model.nv)
     f_ext = check_wrenches(model, f_ext)
-    R_rel, p_rel, S, _, _ = joint_kinematics(model, q)
+    R_rel, p_rel, S, _, _ = joint_kinematics(plan(model), q)
     Xup = pose_to_motion_transform(R_rel, p_rel)                    # X_{i<-lambda(i)}
     I = inertia_at_origin(model.mass, model.com, model.inertia)
     d = model.nv_joint
@@ -43,7 +43,7 @@ def _setup(model, q, qd, f_ext):
         p = model.parent[i]
         u[i] = Sj[i] @ qd[dofs[i]]
         v[i] = (0 if p < 0 else Xup[i] @ v[p]) + u[i]
-    c = velocity_product(model, S, np.zeros_like(v), u, qd) + np.einsum(
+    c = velocity_product(plan(model), S, np.zeros_like(v), u, qd) + np.einsum(
         "kij,kj->ki", crm(v), u)
     return q, qd, Xup, I, Sj, dofs, fx, v, c
 

@@ -17,21 +17,29 @@ from .dynamics import check_vector, default_tree, forward_dynamics
 from .errors import InputError, SimulationError
 from .integrators import get_integrator, normalize_configuration
 
-METHODS = ("dca",)
+METHODS = ("dca", "adaptive")
 
 
 class Simulator:
     """Step ``model`` from ``(q0, qd0)`` with time step ``dt``.
 
-    method: ``"dca"`` (exact forward dynamics by the DCA).
+    method: ``"dca"`` (exact forward dynamics by the DCA) or ``"adaptive"``
+    (:class:`~vdad.adaptive.AdaptiveDynamics`, with ``threshold=`` or
+    ``budget=`` and its other options as keyword arguments).
     integrator: ``"semi-implicit"`` (symplectic Euler) or ``"rk4"``.
     tree: assembly tree (default: balanced).
+
+    With ``"adaptive"``, ``history`` holds the :class:`~vdad.adaptive.StepStats`
+    of every step and ``adaptive`` the adaptive work state.
     """
 
     def __init__(self, model, q0=None, qd0=None, dt=1e-3, method="dca",
-                 integrator="semi-implicit", tree=None, controller=None, external=None):
+                 integrator="semi-implicit", tree=None, controller=None, external=None,
+                 **adaptive_options):
         if method not in METHODS:
             raise InputError(f"unknown method {method!r}; choose one of {METHODS}")
+        if adaptive_options and method == "dca":
+            raise InputError(f"options {sorted(adaptive_options)} need method='adaptive'")
         if not np.isfinite(dt) or dt <= 0:
             raise InputError(f"dt must be a positive finite number, got {dt}")
         self.model = model
@@ -48,6 +56,12 @@ class Simulator:
         self.qd = np.zeros(model.nv) if qd0 is None else check_vector("qd0", qd0, model.nv).copy()
         self.t = 0.0
         self.step_count = 0
+        self.history = []
+        self.adaptive = None
+        if method == "adaptive":
+            from .adaptive import AdaptiveDynamics
+
+            self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
 
     def accelerations(self, t, q, qd):
         """``qdd`` at ``(t, q, qd)`` with the simulator's forces."""
@@ -61,8 +75,13 @@ class Simulator:
         """Advance ``n`` steps; returns ``self``."""
         for _ in range(int(n)):
             try:
-                q, qd = self._integrate(self.model, self.accelerations, self.t, self.q, self.qd,
-                                        self.dt)
+                if self.adaptive is None:
+                    q, qd = self._integrate(self.model, self.accelerations, self.t, self.q,
+                                            self.qd, self.dt)
+                else:
+                    q, qd = self.q.copy(), self.qd.copy()
+                    self.history.append(self.adaptive.step(self.t, q, qd, self._integrate,
+                                                           self.controller, self.external))
             except InputError as exc:
                 raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): a "
                                       f"force callable returned bad values: {exc}") from exc
