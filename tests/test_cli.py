@@ -53,3 +53,35 @@ def test_console_entry_point():
                              "--steps", "5", "--no-progress"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert "3-link pendulum" in result.stdout
+
+
+def test_run_adaptive_reports_active_joints_and_counters(tmp_path):
+    out = tmp_path / "adaptive.json"
+    assert main(["run", "pendulum", "--bodies", "40", "--steps", "60", "--method", "adaptive",
+                 "--threshold", "1e-4", "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert data["method"] == "adaptive" and data["adaptive"]["threshold"] == 1e-4
+    assert 0 < data["active_joints_mean"] < 40
+    counters = data["counters_mean"]
+    for key in ("accelerated", "assembled", "back_substituted", "front", "force_update",
+                "node_visits"):
+        assert counters[key] >= 0
+    assert counters["assembled"] == data["active_joints_mean"]
+    assert set(data["ms_per_phase_mean"]) >= {"kinematics", "assemble", "back_substitute"}
+
+
+def test_run_budget_keeps_the_budget(tmp_path):
+    out = tmp_path / "budget.json"
+    assert main(["run", "pendulum", "--bodies", "40", "--steps", "60", "--method", "adaptive",
+                 "--budget", "5", "--dwell", "0", "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert data["counters_mean"]["accelerated"] <= 5
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "pendulum", "--threshold", "1e-3"], "need --method adaptive"),
+    (["run", "pendulum", "--method", "adaptive"], "exactly one of threshold= or budget="),
+])
+def test_adaptive_option_errors(argv, message, capsys):
+    assert main(argv + ["--no-progress", "--steps", "1"]) == 2
+    assert message in capsys.readouterr().err

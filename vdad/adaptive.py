@@ -35,7 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from . import joints as J
-from .assembly import GROUND
+from .assembly import GROUND, LeafPlan, Level
 from .dca import (
     DCAData,
     MetricData,
@@ -52,6 +52,7 @@ from .kinematics import joint_kinematics, joint_set, kinematics, ranges
 from .spatial import mv
 
 POLICIES = ("momentum", "zero")
+METRICS = ("coefficients", "direct")
 PHASES = ("forces", "kinematics", "leaves", "assemble", "back_substitute", "lookahead",
           "integrate", "region")
 
@@ -133,9 +134,8 @@ def resolve_weights(model, weights, name="weights"):
 
 
 def _padded(js, w):
-    """Diagonal weights ``w`` (nv,) of the joints of ``js`` as (k, 6, 6) blocks."""
-    d = np.append(w[js.v_index], 0.0)[js.dof_index]
-    return d[:, :, None] * np.eye(6)
+    """Diagonal weights ``w`` (nv,) of the joints of ``js``, (k, 6) zero-padded."""
+    return np.append(w[js.v_index], 0.0)[js.dof_index]
 
 
 class AdaptiveDynamics:
@@ -150,10 +150,16 @@ class AdaptiveDynamics:
     node keeps a new state. policy: ``"momentum"`` (locking impulse) or
     ``"zero"`` (zero the velocities of newly rigid joints, as the paper).
     lookahead: release front joints whose look-ahead score is high.
+    metric: ``"coefficients"`` predicts ``A(C)`` from (T16)-(T18) before any
+    ``qdd`` is computed and back-substitutes only the nodes it descends into (the
+    paper's algorithm); ``"direct"`` back-substitutes the whole active region and
+    sums (T14) bottom-up: the same values and decisions, cheaper in numpy, whose
+    cost is per level rather than per node (``docs/adaptive.md``).
     """
 
     def __init__(self, model, dt, tree=None, threshold=None, budget=None, weights=None,
-                 velocity_weights=None, kappa=4.0, dwell=10, policy="momentum", lookahead=True):
+                 velocity_weights=None, kappa=4.0, dwell=10, policy="momentum", lookahead=True,
+                 metric="coefficients"):
         if (threshold is None) == (budget is None):
             raise InputError("adaptive dynamics needs exactly one of threshold= or budget=")
         if threshold is not None and not (np.isfinite(threshold) and threshold >= 0):
@@ -166,6 +172,9 @@ class AdaptiveDynamics:
             raise InputError(f"dwell must be a whole number of steps >= 0, got {dwell}")
         if policy not in POLICIES:
             raise InputError(f"unknown rigidification policy {policy!r}; choose one of {POLICIES}")
+        if metric not in METRICS:
+            raise InputError(f"unknown metric evaluation {metric!r}; choose one of {METRICS}")
+        self.predictive = metric == "coefficients"
         self.model = model
         self.tree = default_tree(model) if tree is None else tree
         self.dt = float(dt)
@@ -229,11 +238,7 @@ class AdaptiveDynamics:
         self.front_top = top_local[~grounded]
         self.front_mobile = mobile
         self.front_lp = _leaf_plan(tree, mobile, jmap)
-        self.levels = []
-        for lv in tree.levels:
-            rows = np.flatnonzero(self.active[lv.node])
-            if len(rows):
-                self.levels.append(lv.restrict(rows, jmap))
+        self.levels = _active_levels(tree, self.active, jmap, k)
         self.data = DCAData(self.Phi, self.b, np.zeros((k + 1, 6)), np.zeros(js.nv + 1),
                             [None] * len(self.levels))
         self.metric.D = _padded(js, self.wA)
@@ -294,12 +299,13 @@ class AdaptiveDynamics:
         la_map[j] = np.arange(len(j))
         isF = np.zeros(tree.n_nodes + 1, bool)
         isF[F] = True
-        levels = []
+        pieces = []
         for lv in tree.levels:
             rows = np.flatnonzero(isF[lv.node])
             if len(rows):
                 L = lv.restrict(rows, self.jmap)
-                levels.append(replace(L, joint=la_map[lv.joint[rows]]))
+                pieces.append(replace(L, joint=la_map[lv.joint[rows]]))
+        levels = Level.merge(pieces, len(self.js.joints))        # independent nodes
         return SimpleNamespace(
             F=F, leaf_node=leaf_node, leaf_F=leaf_F, TR=TR, mass=m, com=com, inertia=inertia,
             Iinv=Iinv, lp=lp, fixed_R=fixed_R, fixed_p=fixed_p, js=js,
@@ -371,7 +377,7 @@ class AdaptiveDynamics:
         t3 = time.perf_counter()
         st.times["leaves"] += t3 - t2
         assemble(self.levels, js, kin, np.append(tau, 0.0), self.data,
-                 self.metric if first else None)
+                 self.metric if first and self.predictive else None)
         t4 = time.perf_counter()
         st.times["assemble"] += t4 - t3
         self.data.qdd[:] = 0.0
@@ -380,7 +386,11 @@ class AdaptiveDynamics:
             self.desc[:] = False
             self.desc[-1] = True
             self.metric.A[:] = np.nan
-            back_substitute(self.levels, js, self.data, self._select)
+            if self.predictive:
+                back_substitute(self.levels, js, self.data, self._select)
+            else:
+                back_substitute(self.levels, js, self.data)
+                self._direct_metric()
             t5 = time.perf_counter()
             if self.la is not None:
                 self._lookahead(kin)
@@ -401,6 +411,33 @@ class AdaptiveDynamics:
     def score_V(self, V):
         """``dt sqrt(V)``: the displacement per step the velocities cause."""
         return self.dt * np.sqrt(np.maximum(V, 0.0))
+
+    def _direct_metric(self):
+        """(T14) summed bottom-up over the active region from the computed ``qdd``,
+        then the threshold's descent (``metric="direct"``)."""
+        qdd = self.data.qdd[:-1]
+        own = np.bincount(self.dof_joint, self.wA[self.js.v_index] * qdd**2,
+                          minlength=self.js.k)
+        A = self.metric.A
+        A[self.front] = 0.0
+        A[-1] = 0.0
+        for lv in self.levels:
+            A[lv.node] = A[lv.node_A] + A[lv.node_B] + own[lv.joint]
+        A[-1] = np.nan
+        n_rows = sum(len(lv.node) for lv in self.levels)
+        self.stats.back_substituted = n_rows
+        if self.budget is not None:
+            self.desc[self.act] = True
+            return
+        for n in range(len(self.levels) - 1, -1, -1):
+            lv = self.levels[n]
+            go = self.desc[lv.node_up] & (self.score_A(A[lv.node]) > self.threshold)
+            self.desc[lv.node] = go
+            rows = np.flatnonzero(go)
+            self._rows[n] = rows if len(rows) < len(go) else None
+        keep = self.desc[self.act]
+        self.stats.accelerated = int(keep.sum())
+        qdd[~keep[self.dof_joint]] = 0.0
 
     def _select(self, n, lv, f):
         """Top-down restriction (threshold mode): descend into a node whose parent
@@ -479,7 +516,7 @@ class AdaptiveDynamics:
         for n, lv in enumerate(la.levels):
             f_ports = self.data.f_J[lv.port_joint] * lv.port_side[:, :, None]
             _, qdd = joint_solution(*la.data.levels[n], f_ports)
-            la.A[pos[lv.node]] = np.einsum("ki,ki->k", qdd, mv(la.D[lv.joint], qdd))
+            la.A[pos[lv.node]] = (la.D[lv.joint] * qdd**2).sum(axis=1)
         self.stats.lookahead = len(la.F)
 
     # --- region update ----------------------------------------------------------------
@@ -580,11 +617,38 @@ class AdaptiveDynamics:
         return self.data.qdd[:-1].copy()
 
 
+def _active_levels(tree, active, jmap, k):
+    """The tree's levels restricted to ``active`` nodes and re-batched by height
+    within the active region (fronts at 0), so that a small region costs as many
+    levels as it is deep, not as the tree; joints renumbered by ``jmap``."""
+    height = np.zeros(tree.n_nodes + 1, int)
+    pieces = []
+    for lv in tree.levels:
+        rows = np.flatnonzero(active[lv.node])
+        if len(rows):
+            L = lv.restrict(rows, jmap)
+            height[L.node] = 1 + np.maximum(height[L.node_A], height[L.node_B])
+            pieces.append(L)
+    levels = []
+    for h in range(1, int(height.max()) + 1 if pieces else 1):
+        parts = []
+        for L in pieces:
+            rows = np.flatnonzero(height[L.node] == h)
+            if len(rows):
+                parts.append(L if len(rows) == len(L.node) else _rows(L, rows))
+        if parts:
+            levels += Level.merge(parts, k)
+    return levels
+
+
+def _rows(lv, rows):
+    """The batch ``lv`` restricted to ``rows`` (joints already local)."""
+    return replace(lv, **{name: getattr(lv, name)[rows] for name in lv.__dataclass_fields__})
+
+
 def _leaf_plan(tree, nodes, jmap):
     """Leaf ports and port pairs of rigid ``nodes`` (a LeafPlan; ``body`` indexes
     ``nodes``, ``joint`` the local joint of each port)."""
-    from .assembly import LeafPlan
-
     P = tree.n_ports[nodes]
     slots = ranges(tree.slot_base[nodes], P)
     leaf = np.repeat(np.arange(len(nodes)), P)

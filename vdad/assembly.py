@@ -64,6 +64,40 @@ class Level:
     node_B: np.ndarray      #   the parent node (n_nodes: none), for node stores
     node_up: np.ndarray
 
+    def padded(self, P, pad_joint):
+        """The batch with its port count padded to ``P`` (``pad_joint``: the joint
+        index that padding ports read, a zero wrench)."""
+        k, P0 = self.sign.shape
+        if P == P0:
+            return self
+        fields = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        fill = {"Phi0": ZERO, "out_Phi": TRASH, "G": ZERO, "sign": 0, "b0": ZERO,
+                "out_b": TRASH, "port_joint": pad_joint, "port_side": 0}
+        for name, value in fill.items():
+            a = fields[name]
+            width = [(0, 0), (0, P - P0)] + ([(0, P - P0)] if a.ndim == 3 else [])
+            fields[name] = np.pad(a, width, constant_values=value)
+        return Level(**fields)
+
+    @staticmethod
+    def merge(levels, pad_joint):
+        """Batches of the rows of independent ``levels``: one, padded to the largest
+        port count, unless padding would more than double its block work (then
+        one per port count, as :class:`AssemblyTree` splits a height)."""
+        P = np.concatenate([np.full(len(lv.node), lv.sign.shape[1]) for lv in levels])
+        if len(P) * P.max() ** 2 <= 2 * np.sum(P**2) + 16:
+            groups = [levels]
+        else:
+            groups = [[lv for lv in levels if lv.sign.shape[1] == p] for p in np.unique(P)]
+        out = []
+        for group in groups:
+            Pg = max(lv.sign.shape[1] for lv in group)
+            padded = [lv.padded(Pg, pad_joint) for lv in group]
+            out.append(padded[0] if len(padded) == 1 else Level(
+                **{name: np.concatenate([getattr(lv, name) for lv in padded])
+                   for name in Level.__dataclass_fields__}))
+        return out
+
     def restrict(self, rows, joint_map):
         """The batch of ``rows`` only, with joints renumbered by ``joint_map``
         (joint -> local index; its last entry maps the padding joint ``nj``)."""

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from .errors import VdadError
+from .errors import InputError, VdadError
 
 
 def _positive_int(text):
@@ -29,7 +29,22 @@ def _positive_float(text):
     return value
 
 
+def _nonnegative_float(text):
+    value = float(text)
+    if not np.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
+    return value
+
+
+def _nonnegative_int(text):
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
+    return value
+
+
 def build_parser():
+    from .adaptive import METRICS, POLICIES
     from .integrators import INTEGRATORS
     from .scenes import SCENES
     from .simulator import METHODS
@@ -47,7 +62,25 @@ def build_parser():
     run.add_argument("--steps", type=_positive_int, default=500,
                      help="number of time steps (default 500)")
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="time step in s (1e-3)")
-    run.add_argument("--method", choices=METHODS, default="dca", help="dynamics method")
+    run.add_argument("--method", choices=METHODS, default="dca",
+                     help="dynamics method: exact DCA or adaptive dynamics (default dca)")
+    adaptive = run.add_argument_group(
+        "adaptive dynamics", "with --method adaptive: give --threshold or --budget")
+    adaptive.add_argument("--threshold", type=_nonnegative_float,
+                          help="drop accelerations whose score (weighted displacement per "
+                          "step) is below this; 0 reproduces the DCA")
+    adaptive.add_argument("--budget", type=_nonnegative_int,
+                          help="accelerate only this many joints (max-heap on the metric)")
+    adaptive.add_argument("--policy", choices=POLICIES, default="momentum",
+                          help="velocities of newly rigid joints: momentum-conserving "
+                          "locking impulse, or zeroed as in the paper (default momentum)")
+    adaptive.add_argument("--metric", choices=METRICS, default="coefficients",
+                          help="predict the metric from (T16)-(T18), or sum it from computed "
+                          "accelerations (same values; default coefficients)")
+    adaptive.add_argument("--dwell", type=_nonnegative_int, default=10,
+                          help="steps a joint keeps a new state (default 10)")
+    adaptive.add_argument("--kappa", type=float, default=4.0,
+                          help="hysteresis: rigidify below threshold/kappa (default 4)")
     run.add_argument("--integrator", choices=sorted(INTEGRATORS), default="semi-implicit",
                      help="time integrator (default semi-implicit Euler)")
     run.add_argument("--json", metavar="PATH", help="write the summary as JSON to PATH")
@@ -61,7 +94,13 @@ def run_scene(args):
     from .scenes import SCENES
 
     scene = SCENES[args.scene](n_bodies=args.bodies, dt=args.dt)
-    sim = scene.simulator(method=args.method, integrator=args.integrator)
+    options = {}
+    if args.method == "adaptive":
+        options = dict(threshold=args.threshold, budget=args.budget, policy=args.policy,
+                       metric=args.metric, dwell=args.dwell, kappa=args.kappa)
+    elif args.threshold is not None or args.budget is not None:
+        raise InputError("--threshold and --budget need --method adaptive")
+    sim = scene.simulator(method=args.method, integrator=args.integrator, **options)
     chunk = max(1, args.steps // 100)
     start = time.perf_counter()
     with tqdm(total=args.steps, desc=f"{args.scene} ({scene.model.nb} bodies)", unit="step",
@@ -80,13 +119,31 @@ def run_scene(args):
         "ms_per_step": 1e3 * elapsed / args.steps, "final_q": sim.q.tolist(),
         "final_qd": sim.qd.tolist(), "params": scene.params,
     }
+    if sim.history:
+        summary.update(adaptive_summary(sim.history))
+        summary["adaptive"] = {k: v for k, v in options.items() if v is not None}
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(summary, fh, indent=1)
+    active = (f", {summary['active_joints_mean']:.1f} of {scene.model.nb} joints active on "
+              f"average" if sim.history else "")
     print(f"{scene.description}: {args.steps} steps of {args.dt} s with {args.method} "
-          f"({args.integrator}), {summary['ms_per_step']:.3f} ms per step"
+          f"({args.integrator}), {summary['ms_per_step']:.3f} ms per step{active}"
           + (f"; summary in {args.json}" if args.json else ""))
     return 0
+
+
+def adaptive_summary(history):
+    """Means of the adaptive counters over ``history`` (a list of StepStats): the
+    JSON's ``active_joints_mean``, ``counters_mean`` and ``ms_per_phase_mean``."""
+    from dataclasses import fields
+
+    names = [f.name for f in fields(history[0]) if f.name != "times"]
+    counters = {name: float(np.mean([getattr(s, name) for s in history])) for name in names}
+    counters["node_visits"] = float(np.mean([s.node_visits for s in history]))
+    phases = {k: 1e3 * float(np.mean([s.times[k] for s in history])) for k in history[0].times}
+    return {"active_joints_mean": counters["active_joints"], "counters_mean": counters,
+            "ms_per_phase_mean": phases}
 
 
 def main(argv=None):
