@@ -166,11 +166,18 @@ def write_table(rows, result):
                      f"{fmt(r['pinocchio_us'])} | {fmt(r['mujoco_us'])} | "
                      f"{fmt(r['vdad_over_pinocchio'], 2)} | {fmt(r['vdad_over_mujoco'], 2)} | "
                      f"{r['notes']} |")
-    lines += ["", MARK[1]]
+    write_section(MARK, lines[1:])
+
+
+def write_section(mark, lines):
+    """Replace the text between the markers ``mark`` of ``docs/benchmarks.md`` by
+    ``lines`` (the section is appended if the markers are missing)."""
     path = DOCS / "benchmarks.md"
-    text = path.read_text() if path.exists() else "# Benchmarks\n\n" + MARK[0] + MARK[1] + "\n"
-    start, end = text.index(MARK[0]), text.index(MARK[1]) + len(MARK[1])
-    path.write_text(text[:start] + "\n".join(lines) + text[end:])
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    if mark[0] not in text:
+        text += f"\n{mark[0]}{mark[1]}\n"
+    start, end = text.index(mark[0]), text.index(mark[1]) + len(mark[1])
+    path.write_text(text[:start] + "\n".join([mark[0], *lines, "", mark[1]]) + text[end:])
 
 
 if __name__ == "__main__":

@@ -53,7 +53,7 @@ from .spatial import mv
 
 POLICIES = ("momentum", "zero")
 METRICS = ("coefficients", "direct")
-PHASES = ("forces", "kinematics", "leaves", "assemble", "back_substitute", "lookahead",
+PHASES = ("forces", "kinematics", "leaves", "assemble", "back_substitute", "select",
           "integrate", "region")
 
 
@@ -66,7 +66,7 @@ class StepStats:
     back_substituted: nodes evaluated by the two passes; force_update: node
     visits carrying force changes up rigid regions; lookahead: front joints
     evaluated; rigidified / released: nodes that changed state; times: seconds
-    per phase (:data:`PHASES`).
+    per phase (:data:`PHASES`; ``select``: look-ahead and budget heap).
     """
 
     active_joints: int = 0
@@ -396,11 +396,11 @@ class AdaptiveDynamics:
                 self._lookahead(kin)
             if self.budget is not None:
                 self._run_heap()
-            st.times["lookahead"] += time.perf_counter() - t5
+            st.times["select"] += time.perf_counter() - t5
         else:
             back_substitute(self.levels, js, self.data, lambda n, lv, f: self._rows[n])
         st.times["back_substitute"] += time.perf_counter() - t4 - (
-            st.times["lookahead"] if first else 0.0)
+            st.times["select"] if first else 0.0)
         self._eval_time += time.perf_counter() - t_start
         return self.data.qdd[:-1].copy()
 

@@ -56,6 +56,7 @@ class RigidGroups:
         self.fF = np.zeros((N, 3))
         self.fK = np.zeros((N, 3, 3))
         self.f_ext = np.zeros((nb, 6))            # wrenches the sums hold
+        self.any_force = False
         right = np.zeros(N, bool)
         right[tree.right] = True
         self.is_B = right                         # node is the B child of its parent
@@ -111,7 +112,12 @@ class RigidGroups:
         through the rigid ancestors of each changed body, stopping below active
         nodes (``active``: node mask). Returns the number of node visits."""
         nb = self.tree.model.nb
-        f_new = np.zeros((nb, 6)) if f_ext is None else f_ext
+        if f_ext is None:
+            if not self.any_force:
+                return 0
+            f_ext = np.zeros((nb, 6))
+        self.any_force = f_ext is not None and bool(np.any(f_ext))
+        f_new = f_ext
         changed = np.flatnonzero(np.any(f_new != self.f_ext, axis=1))
         if not len(changed):
             return 0

@@ -1,0 +1,197 @@
+"""Time adaptive dynamics against the number of active joints (issue 3).
+
+Pendulums of 300, 1000 and 10000 bodies (``vdad.scenes.pendulum``) released from
+1 rad. Each adaptive run holds a fixed number of active joints: budget mode with
+no look-ahead and no dwell, so the first step keeps the ``budget`` joints of
+highest metric and rigidifies the rest for good; the time per step is then
+measured on the following steps, for both metric evaluations
+(``coefficients``, ``direct``). The full DCA and MuJoCo's ``mj_step`` (where it
+compiles the model) are timed in the same run. Writes
+``docs/bench_adaptive.json`` and the section between the markers of
+``docs/benchmarks.md``. Usage: ``python scripts/bench_adaptive.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_dynamics import DOCS, fmt, write_section
+
+import vdad
+from vdad.scenes import pendulum
+
+MARK = ("<!-- bench_adaptive:start -->", "<!-- bench_adaptive:end -->")
+SIZES = (300, 1000, 10000)
+ACTIVE = (1, 5, 20, 50, 100, 300)
+PREDECESSOR = (300, 100, 50, 20, 1)        # Redon et al. 2005, 300-joint pendulum
+THRESHOLDS = (0.0, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3)
+VARIANTS = {"look-ahead, hysteresis (default)": {},
+            "no look-ahead": {"lookahead": False},
+            "look-ahead, no hysteresis (kappa 1, dwell 0)": {"kappa": 1.0, "dwell": 0}}
+MUJOCO_MAX = 1000                          # mj compiles chains up to ~1000 (anchors §1)
+
+
+def ms_per_step(sim, steps, repeats):
+    """Median ms per step over ``repeats`` chunks of ``steps`` steps."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        sim.step(steps)
+        times.append((time.perf_counter() - t0) / steps)
+    return 1e3 * statistics.median(times)
+
+
+def time_adaptive(scene, active, metric, steps, repeats):
+    sim = scene.simulator(method="adaptive", budget=active, dwell=0, lookahead=False,
+                          metric=metric)
+    sim.step(3)                                   # settle the region
+    t = ms_per_step(sim, steps, repeats)
+    held = [s.active_joints for s in sim.history[3:]]
+    return t, float(np.mean(held)), len(sim.adaptive.levels)
+
+
+def time_mujoco_step(model, steps, repeats):
+    if model.nb > MUJOCO_MAX:
+        return None, f"mujoco: not tried above {MUJOCO_MAX} bodies (does not compile at 1600)"
+    import mujoco
+
+    from vdad.interop.mujoco import to_mujoco
+
+    m, d = to_mujoco(model)
+    m.opt.timestep = 1e-3
+    d.qpos[:] = 0.0
+    d.qpos[0] = 1.0
+
+    def run():
+        for _ in range(steps):
+            mujoco.mj_step(m, d)
+
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run()
+        times.append((time.perf_counter() - t0) / steps)
+    return 1e3 * statistics.median(times), ""
+
+
+def tip(sim):
+    """World position of the pendulum's last body."""
+    from vdad.kinematics import kinematics
+
+    return kinematics(sim.model, sim.q, sim.qd).p[-1]
+
+
+def threshold_sweep(steps):
+    """300-body pendulum, ``steps`` steps: adaptive against the full DCA from the
+    same state, per threshold and re-activation variant."""
+    scene = pendulum(300)
+    ref = scene.simulator()
+    ref.step(steps)
+    length = scene.model.nb * scene.params["link_length"]
+    out = []
+    for name, options in VARIANTS.items():
+        for eps in THRESHOLDS:
+            sim = scene.simulator(method="adaptive", threshold=eps, **options)
+            t0 = time.perf_counter()
+            sim.step(steps)
+            elapsed = time.perf_counter() - t0
+            h = sim.history
+            row = dict(variant=name, threshold=eps, steps=steps,
+                       active_mean=float(np.mean([s.active_joints for s in h])),
+                       accelerated_mean=float(np.mean([s.accelerated for s in h])),
+                       ms_per_step=1e3 * elapsed / steps,
+                       changes_per_step=float(np.mean([s.rigidified + s.released for s in h])),
+                       tip_error=float(np.linalg.norm(tip(sim) - tip(ref)) / length),
+                       max_angle_error=float(np.max(np.abs(sim.q - ref.q))))
+            out.append(row)
+            print(json.dumps(row), flush=True)
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer steps and repeats")
+    parser.add_argument("--out", default=str(DOCS / "bench_adaptive.json"))
+    args = parser.parse_args(argv)
+    steps, repeats = (5, 3) if args.quick else (20, 7)
+    rows = []
+    for n in SIZES:
+        scene = pendulum(n)
+        full = scene.simulator()
+        full.step(1)
+        t_full = ms_per_step(full, max(1, steps // (10 if n > 1000 else 1)), repeats)
+        t_mj, mj_note = time_mujoco_step(scene.model, steps, repeats)
+        for active in [a for a in ACTIVE if a <= n]:
+            row = dict(bodies=n, active=active, full_dca_ms=t_full, mujoco_ms=t_mj, notes=mj_note)
+            for metric in ("coefficients", "direct"):
+                t, held, levels = time_adaptive(scene, active, metric, steps, repeats)
+                row[f"{metric}_ms"] = t
+                row["active_held"], row["levels"] = held, levels
+            row["speedup_coefficients"] = t_full / row["coefficients_ms"]
+            row["speedup_direct"] = t_full / row["direct_ms"]
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    sweep = threshold_sweep(100 if args.quick else 500)
+    result = dict(machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+                  python=platform.python_version(), numpy=np.__version__, vdad=vdad.__version__,
+                  quick=args.quick, rows=rows, threshold_sweep=sweep)
+    Path(args.out).write_text(json.dumps(result, indent=1))
+    write_tables(rows, result)
+
+
+def _row(rows, n, a):
+    return next(r for r in rows if r["bodies"] == n and r["active"] == a)
+
+
+def write_tables(rows, result):
+    at50 = {n: _row(rows, n, 50) for n in SIZES}
+    ratio = {m: at50[10000][f"{m}_ms"] / at50[1000][f"{m}_ms"] for m in ("coefficients",
+                                                                          "direct")}
+    lines = ["", f"Median ms per step (dt = 1 ms, semi-implicit Euler); Python "
+             f"{result['python']}, numpy {result['numpy']}, {result['machine']}"
+             f"{' (quick run)' if result['quick'] else ''}. Adaptive runs hold the number of "
+             "active joints fixed (budget mode, no look-ahead).", "",
+             "| bodies | active joints | levels | adaptive, coefficients | adaptive, direct | "
+             "full DCA | speed-up (coeff. / direct) | mj_step | notes |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['bodies']} | {r['active_held']:.0f} | {r['levels']} | "
+                     f"{fmt(r['coefficients_ms'], 2)} | {fmt(r['direct_ms'], 2)} | "
+                     f"{fmt(r['full_dca_ms'], 2)} | {r['speedup_coefficients']:.1f}x / "
+                     f"{r['speedup_direct']:.1f}x | {fmt(r['mujoco_ms'], 2)} | {r['notes']} |")
+    lines += ["", "At 50 active joints the 10000-body step takes "
+              f"{ratio['coefficients']:.2f}x (coefficients) and {ratio['direct']:.2f}x (direct) "
+              "the 1000-body step (target: within 1.5x).", "",
+              "Predecessor's series (Redon et al. 2005: 300-joint pendulum):", "",
+              "| active joints | coefficients ms | direct ms | full DCA ms | speed-up "
+              "(coeff. / direct) | mj_step ms |", "|---|---|---|---|---|---|"]
+    for a in PREDECESSOR:
+        r = _row(rows, 300, a)
+        lines.append(f"| {a} | {fmt(r['coefficients_ms'], 2)} | {fmt(r['direct_ms'], 2)} | "
+                     f"{fmt(r['full_dca_ms'], 2)} | {r['speedup_coefficients']:.1f}x / "
+                     f"{r['speedup_direct']:.1f}x | {fmt(r['mujoco_ms'], 2)} |")
+    sweep = result["threshold_sweep"]
+    lines += ["", f"Threshold sweep (300-body pendulum from 1 rad, {sweep[0]['steps']} steps "
+              "of 1 ms, `metric=coefficients`): tip error is the distance between the last "
+              "body's positions under adaptive dynamics and under the full DCA, over the "
+              "pendulum's length; changes are nodes rigidified or released per step.", "",
+              "| variant | threshold | mean active | mean accelerated | ms / step | "
+              "changes / step | tip error | max joint-angle error (rad) |",
+              "|---|---|---|---|---|---|---|---|"]
+    for r in sweep:
+        lines.append(f"| {r['variant']} | {r['threshold']:g} | {r['active_mean']:.1f} | "
+                     f"{r['accelerated_mean']:.1f} | {r['ms_per_step']:.2f} | "
+                     f"{r['changes_per_step']:.2f} | {r['tip_error']:.2e} | "
+                     f"{r['max_angle_error']:.2e} |")
+    write_section(MARK, lines)
+
+
+if __name__ == "__main__":
+    main()
