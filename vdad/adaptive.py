@@ -35,7 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from . import joints as J
-from .assembly import GROUND, LeafPlan, Level
+from .assembly import GROUND, TRASH, LeafPlan, Level
 from .dca import (
     DCAData,
     MetricData,
@@ -145,8 +145,10 @@ class AdaptiveDynamics:
     weighted displacement per step; budget: number of joints to accelerate
     (budget mode); exactly one of them. weights / velocity_weights: ``A_i`` and
     ``V_i`` of (T14)-(T15) (:func:`resolve_weights`; ``V_i = A_i`` by default).
-    kappa: hysteresis factor (rigidify below ``threshold / kappa``; in budget
-    mode active nodes compete with ``kappa`` times their score). dwell: steps a
+    kappa: hysteresis factor: front nodes are released above ``threshold``,
+    active nodes keep their accelerations down to ``threshold / kappa`` and are
+    rigidified below it (in budget mode active nodes compete with ``kappa``
+    times their score). A free joint to the world is never rigidified. dwell: steps a
     node keeps a new state. policy: ``"momentum"`` (locking impulse) or
     ``"zero"`` (zero the velocities of newly rigid joints, as the paper).
     lookahead: release front joints whose look-ahead score is high.
@@ -197,6 +199,15 @@ class AdaptiveDynamics:
         self.metric = MetricData(np.zeros((tree.n_blocks, 6, 6)), np.zeros((tree.n_slots, 6)),
                                  np.zeros(n + 1), None, np.full(n + 1, np.nan))
         self.V = np.zeros(n + 1)
+        # a free joint to the world is never rigidified: welding a floating base to
+        # the world would stop it (and take its momentum); so are its ancestors
+        self.pinned = np.zeros(n + 1, bool)
+        floating = np.flatnonzero((model.parent < 0) & (model.nv_joint == 6))
+        node = model.nb + np.flatnonzero(np.isin(self.tree.joint, floating))
+        while len(node):
+            self.pinned[node] = True
+            node = self.tree.up[node]
+            node = node[node >= 0]
         self.desc = np.zeros(n + 1, bool)
         self.step_count = 0
         self.stats = StepStats()
@@ -304,7 +315,11 @@ class AdaptiveDynamics:
             rows = np.flatnonzero(isF[lv.node])
             if len(rows):
                 L = lv.restrict(rows, self.jmap)
-                pieces.append(replace(L, joint=la_map[lv.joint[rows]]))
+                # only the intermediates are needed: Phi^C, b^C go to the trash slot,
+                # so the front's own blocks (leaves of the main passes) stay intact
+                pieces.append(replace(L, joint=la_map[lv.joint[rows]],
+                                      out_Phi=np.full_like(L.out_Phi, TRASH),
+                                      out_b=np.full_like(L.out_b, TRASH)))
         levels = Level.merge(pieces, len(self.js.joints))        # independent nodes
         return SimpleNamespace(
             F=F, leaf_node=leaf_node, leaf_F=leaf_F, TR=TR, mass=m, com=com, inertia=inertia,
@@ -404,6 +419,11 @@ class AdaptiveDynamics:
         self._eval_time += time.perf_counter() - t_start
         return self.data.qdd[:-1].copy()
 
+    @property
+    def _keep(self):
+        """Score an active node needs to keep its accelerations: ``threshold / kappa``."""
+        return self.threshold / self.kappa
+
     def score_A(self, A):
         """``dt^2 sqrt(A)``: the displacement per step the accelerations cause."""
         return self.dt**2 * np.sqrt(np.maximum(A, 0.0))
@@ -431,7 +451,7 @@ class AdaptiveDynamics:
             return
         for n in range(len(self.levels) - 1, -1, -1):
             lv = self.levels[n]
-            go = self.desc[lv.node_up] & (self.score_A(A[lv.node]) > self.threshold)
+            go = self.desc[lv.node_up] & (self.score_A(A[lv.node]) > self._keep)
             self.desc[lv.node] = go
             rows = np.flatnonzero(go)
             self._rows[n] = rows if len(rows) < len(go) else None
@@ -450,7 +470,7 @@ class AdaptiveDynamics:
             self.desc[lv.node] = True
             self.stats.back_substituted += len(reached)
             return None
-        go = reached & (self.score_A(A) > self.threshold)
+        go = reached & (self.score_A(A) > self._keep)
         self.desc[lv.node] = go
         rows = np.flatnonzero(go)
         self._rows[n] = rows if len(rows) < len(go) else None
@@ -530,14 +550,15 @@ class AdaptiveDynamics:
             self.V[lv.node] = self.V[lv.node_A] + self.V[lv.node_B] + v_own[lv.joint]
         old = self.step_count - self.since >= self.dwell
         act = self.act
-        reached_parent = self.desc[np.where(tree.up[act] < 0, tree.n_nodes, tree.up[act])]
+        up = np.where(tree.up[act] < 0, tree.n_nodes, tree.up[act])
+        # candidates: the highest nodes not descended into that may be rigidified
+        # (below a pinned node that was not descended into, its children are)
+        reached_parent = self.desc[up] | self.pinned[up]
         if self.budget is None:
-            eps = self.threshold
-            low = ((self.score_A(self.metric.A[act]) <= eps / self.kappa)
-                   & (self.score_V(self.V[act]) <= eps / self.kappa))
-            cand = reached_parent & ~self.desc[act] & low & old[act]
+            low = self.score_V(self.V[act]) <= self._keep        # and score_A: not descended
+            cand = reached_parent & ~self.desc[act] & low & old[act] & ~self.pinned[act]
         else:
-            cand = reached_parent & ~self.desc[act] & old[act]
+            cand = reached_parent & ~self.desc[act] & old[act] & ~self.pinned[act]
         release = np.zeros(0, int)
         if self.la is not None:
             F = self.la.F
