@@ -425,3 +425,24 @@ def test_adaptive_options_are_checked():
         scene.simulator(method="adaptive", threshold=1e-3, kappa=0.5)
     with pytest.raises(InputError, match=r"\['threshold'\] need method='adaptive'"):
         scene.simulator(method="dca", threshold=1e-3)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_body_poses_follow_their_rigid_groups(seed):
+    """Poses asked for during an adaptive run (rigid groups composed with the
+    active joints only) equal the full kinematics of the frozen configuration."""
+    model = random_tree(seed, n=16, roots=2, composite=True)
+    q, qd, _, _ = random_state(model, seed)
+    sim = vdad.Simulator(model, q, 0.2 * qd, method="adaptive", budget=5, dwell=2)
+    full = vdad.Simulator(model, q, qd)
+    for _ in range(4):
+        sim.step(5)
+        assert sim.history[-1].active_joints < model.nb
+        full.q = sim.q
+        R_ref, p_ref = full.body_poses()
+        R, p = sim.body_poses()
+        scale = 1 + np.abs(p_ref).max()
+        assert np.abs(R - R_ref).max() < 1e-12 and np.abs(p - p_ref).max() < 1e-12 * scale
+        some = [model.nb - 1, 0, 5]
+        R_s, p_s = sim.body_poses(some)
+        assert np.abs(p_s - p_ref[some]).max() < 1e-12 * scale

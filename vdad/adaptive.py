@@ -48,7 +48,7 @@ from .dca import (
 from .dynamics import check_wrenches, default_tree, passive_forces
 from .errors import InputError
 from .hybrid import RigidGroups, group_wrench, momentum_at_com
-from .kinematics import joint_kinematics, joint_set, kinematics, ranges
+from .kinematics import body_poses, joint_kinematics, joint_set, kinematics, ranges
 from .spatial import mv
 
 POLICIES = ("momentum", "zero")
@@ -330,6 +330,22 @@ class AdaptiveDynamics:
             D=_padded(js, self.wA), top=np.where(g.grounded[F], -1,
                                                  jmap[np.maximum(tree.top[F], 0)]),
             A=np.zeros(len(F)))
+
+    def body_poses(self, q, bodies=None):
+        """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of ``bodies`` (default: all) at
+        ``q``: each body's pose in its rigid group (:meth:`RigidGroups.pose_in_group`)
+        composed with the group's pose from the active joints only."""
+        if self.js is None:
+            self._build(q)
+        bodies = np.arange(self.model.nb) if bodies is None else np.asarray(bodies, int)
+        group, R_in, p_in = self.groups.pose_in_group(bodies, self.active)
+        js = self.js
+        R_top, p_top = body_poses(js, *joint_kinematics(js, q[js.q_index])[:2])
+        R_top = np.concatenate([R_top, np.eye(3)[None]])          # index k: the world
+        p_top = np.concatenate([p_top, np.zeros((1, 3))])
+        top = np.where(self.groups.grounded[group], js.k,
+                       self.jmap[np.maximum(self.tree.top[group], 0)])
+        return R_top[top] @ R_in, p_top[top] + mv(R_top[top], p_in)
 
     # --- one step -------------------------------------------------------------------
 

@@ -63,6 +63,18 @@ class Simulator:
 
             self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
 
+    def body_poses(self, bodies=None):
+        """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of ``bodies`` (indices; default
+        all) in the current state. With ``"adaptive"`` only the active joints and
+        the requested bodies' rigid groups are evaluated."""
+        if self.adaptive is not None:
+            return self.adaptive.body_poses(self.q, bodies)
+        from .kinematics import body_poses, joint_kinematics, plan
+
+        js = plan(self.model)
+        R, p = body_poses(js, *joint_kinematics(js, self.q)[:2])
+        return (R, p) if bodies is None else (R[bodies], p[bodies])
+
     def accelerations(self, t, q, qd):
         """``qdd`` at ``(t, q, qd)`` with the simulator's forces."""
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
