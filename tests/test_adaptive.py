@@ -425,6 +425,14 @@ def test_adaptive_options_are_checked():
         scene.simulator(method="adaptive", threshold=1e-3, kappa=0.5)
     with pytest.raises(InputError, match=r"\['threshold'\] need method='adaptive'"):
         scene.simulator(method="dca", threshold=1e-3)
+    with pytest.raises(InputError, match="threshold must be .* got 'small'"):
+        scene.simulator(method="adaptive", threshold="small")
+    with pytest.raises(InputError, match="dwell must be"):
+        scene.simulator(method="adaptive", threshold=1e-3, dwell=True)
+    with pytest.raises(InputError, match=r"weights\['joint1'\] must be a positive scalar or 1"):
+        scene.simulator(method="adaptive", threshold=1e-3, weights={"joint1": [1.0, 2.0]})
+    with pytest.raises(InputError, match=r"velocity_weights must be positive .* 'joint0'"):
+        scene.simulator(method="adaptive", threshold=1e-3, velocity_weights=[0.0, 1, 1, 1])
 
 
 @pytest.mark.parametrize("seed", [0, 3])

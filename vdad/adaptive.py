@@ -41,6 +41,7 @@ from .dca import (
     MetricData,
     assemble,
     back_substitute,
+    inverse_inertia,
     joint_solution,
     metric_value,
     rigid_leaves,
@@ -49,7 +50,7 @@ from .dynamics import check_wrenches, default_tree, passive_forces
 from .errors import InputError
 from .hybrid import RigidGroups, group_wrench, momentum_at_com
 from .kinematics import body_poses, joint_kinematics, joint_set, kinematics, ranges
-from .spatial import mv
+from .spatial import cross3, mv
 
 POLICIES = ("momentum", "zero")
 METRICS = ("coefficients", "direct")
@@ -113,8 +114,9 @@ def resolve_weights(model, weights, name="weights"):
         for joint, value in weights.items():
             j = model.joint_index(joint)
             d = model.nv_joint[j]
-            v = np.broadcast_to(np.asarray(value, float), (d,)) if np.ndim(value) <= 1 else None
-            if v is None or not np.all(np.isfinite(v)) or np.any(v <= 0):
+            v = np.asarray(value, float)
+            v = np.full(d, float(v)) if v.ndim == 0 else v
+            if v.shape != (d,) or not np.all(np.isfinite(v)) or np.any(v <= 0):
                 raise InputError(f"{name}[{joint!r}] must be a positive scalar or {d} positive "
                                  f"numbers, got {value!r}")
             w[model.v_start[j]:model.v_start[j] + d] = v
@@ -131,6 +133,12 @@ def resolve_weights(model, weights, name="weights"):
         raise InputError(f"{name} must be positive and finite; dof {bad[0]} of joint "
                          f"{joint!r} is {w[bad[0]]}")
     return w
+
+
+def _real(x):
+    """``x`` is a finite real number (not a bool, string or array)."""
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(
+        x, bool) and bool(np.isfinite(x))
 
 
 def _padded(js, w):
@@ -164,14 +172,14 @@ class AdaptiveDynamics:
                  metric="coefficients"):
         if (threshold is None) == (budget is None):
             raise InputError("adaptive dynamics needs exactly one of threshold= or budget=")
-        if threshold is not None and not (np.isfinite(threshold) and threshold >= 0):
-            raise InputError(f"threshold must be a finite number >= 0, got {threshold}")
-        if budget is not None and (int(budget) != budget or budget < 0):
-            raise InputError(f"budget must be a whole number of joints >= 0, got {budget}")
-        if not (np.isfinite(kappa) and kappa >= 1):
-            raise InputError(f"kappa must be >= 1, got {kappa}")
-        if int(dwell) != dwell or dwell < 0:
-            raise InputError(f"dwell must be a whole number of steps >= 0, got {dwell}")
+        if threshold is not None and not (_real(threshold) and threshold >= 0):
+            raise InputError(f"threshold must be a finite number >= 0, got {threshold!r}")
+        if budget is not None and not (_real(budget) and int(budget) == budget >= 0):
+            raise InputError(f"budget must be a whole number of joints >= 0, got {budget!r}")
+        if not (_real(kappa) and kappa >= 1):
+            raise InputError(f"kappa must be >= 1, got {kappa!r}")
+        if not (_real(dwell) and int(dwell) == dwell >= 0):
+            raise InputError(f"dwell must be a whole number of steps >= 0, got {dwell!r}")
         if policy not in POLICIES:
             raise InputError(f"unknown rigidification policy {policy!r}; choose one of {POLICIES}")
         if metric not in METRICS:
@@ -208,7 +216,8 @@ class AdaptiveDynamics:
             self.pinned[node] = True
             node = self.tree.up[node]
             node = node[node >= 0]
-        self.desc = np.zeros(n + 1, bool)
+        self.desc = np.zeros(n + 1, bool)              # descended into this step
+        self.desc[n] = True
         self.step_count = 0
         self.stats = StepStats()
         self.js = None                                   # built at the first step
@@ -218,7 +227,6 @@ class AdaptiveDynamics:
     def _build(self, q):
         """Plans of the current active region at configuration ``q`` (frozen
         joints): joint set, front leaves, restricted levels, look-ahead."""
-        self._q = q
         tree, model, g = self.tree, self.model, self.groups
         nb, n = model.nb, tree.n_nodes
         act = nb + np.flatnonzero(self.active[nb:n])
@@ -263,10 +271,10 @@ class AdaptiveDynamics:
             if g.grounded[F]:
                 self.Phi[blocks], self.b[sl] = 0.0, 0.0
         self.metric.eta[front], self.V[front] = 0.0, 0.0
-        self.la = self._lookahead_plan() if self.lookahead else None
+        self.la = self._lookahead_plan(q) if self.lookahead else None
         self._rows = [None] * len(self.levels)
 
-    def _lookahead_plan(self):
+    def _lookahead_plan(self, q):
         """Internal front nodes, each evaluated as one node over its two rigid
         children expressed in its own frame, with its joint frozen at ``q``."""
         tree, model, g, jmap = self.tree, self.model, self.groups, self.jmap
@@ -285,9 +293,6 @@ class AdaptiveDynamics:
         m = g.mass[leaf_node]
         com = Tp + mv(TR, g.com[leaf_node])
         inertia = TR @ g.inertia[leaf_node] @ np.swapaxes(TR, 1, 2)
-        Iinv = np.zeros((len(leaf_node), 6, 6))
-        Iinv[:, :3, :3] = TR @ g.Iinv[leaf_node][:, :3, :3] @ np.swapaxes(TR, 1, 2)
-        Iinv[:, 3:, 3:] = g.Iinv[leaf_node][:, 3:, 3:]
         lp = _leaf_plan(tree, leaf_node, jmap)
         # fixed ports: each child's side of the frozen joint (body j's frame) and
         # A's inbound port (the group frame); others move with active joints
@@ -304,8 +309,8 @@ class AdaptiveDynamics:
                 self.Phi[tree.block_base[X]:tree.block_base[X] + P * P] = 0.0
                 self.b[tree.slot_base[X]:tree.slot_base[X] + P] = 0.0
         js = joint_set(model, j, np.full(len(j), -1))
-        q_la = self._q[js.q_index]
-        _, _, S, T, W = joint_kinematics(js, q_la)
+        q_la = q[js.q_index]
+        *_, T, W = joint_kinematics(js, q_la)
         la_map = np.full(nb + 1, len(j))
         la_map[j] = np.arange(len(j))
         isF = np.zeros(tree.n_nodes + 1, bool)
@@ -321,9 +326,12 @@ class AdaptiveDynamics:
                                       out_Phi=np.full_like(L.out_Phi, TRASH),
                                       out_b=np.full_like(L.out_b, TRASH)))
         levels = Level.merge(pieces, len(self.js.joints))        # independent nodes
+        pos = np.full(tree.n_nodes + 1, -1)
+        pos[F] = np.arange(len(F))
         return SimpleNamespace(
             F=F, leaf_node=leaf_node, leaf_F=leaf_F, TR=TR, mass=m, com=com, inertia=inertia,
-            Iinv=Iinv, lp=lp, fixed_R=fixed_R, fixed_p=fixed_p, js=js,
+            Iinv=inverse_inertia(m, inertia), lp=lp, rows=[pos[lv.node] for lv in levels],
+            fixed_R=fixed_R, fixed_p=fixed_p, js=js,
             kin=SimpleNamespace(T=T, W=W, c=np.zeros((len(j), 6))),
             tau_springs=passive_forces(js, q_la, np.zeros(js.nv)), levels=levels,
             data=DCAData(self.Phi, self.b, None, None, [None] * len(levels)),
@@ -414,24 +422,24 @@ class AdaptiveDynamics:
         self.data.qdd[:] = 0.0
         if first:
             st.assembled = len(self.act)
-            self.desc[:] = False
-            self.desc[-1] = True
-            self.metric.A[:] = np.nan
+            self.desc[self.act] = False
+            self.metric.A[self.act] = np.nan
             if self.predictive:
                 back_substitute(self.levels, js, self.data, self._select)
             else:
                 back_substitute(self.levels, js, self.data)
                 self._direct_metric()
             t5 = time.perf_counter()
+            st.times["back_substitute"] += t5 - t4
             if self.la is not None:
                 self._lookahead(kin)
             if self.budget is not None:
                 self._run_heap()
+            self._drop_unselected()
             st.times["select"] += time.perf_counter() - t5
         else:
             back_substitute(self.levels, js, self.data, lambda n, lv, f: self._rows[n])
-        st.times["back_substitute"] += time.perf_counter() - t4 - (
-            st.times["select"] if first else 0.0)
+            st.times["back_substitute"] += time.perf_counter() - t4
         self._eval_time += time.perf_counter() - t_start
         return self.data.qdd[:-1].copy()
 
@@ -460,39 +468,38 @@ class AdaptiveDynamics:
         for lv in self.levels:
             A[lv.node] = A[lv.node_A] + A[lv.node_B] + own[lv.joint]
         A[-1] = np.nan
-        n_rows = sum(len(lv.node) for lv in self.levels)
-        self.stats.back_substituted = n_rows
-        if self.budget is not None:
-            self.desc[self.act] = True
-            return
+        self.stats.back_substituted = sum(len(lv.node) for lv in self.levels)
         for n in range(len(self.levels) - 1, -1, -1):
-            lv = self.levels[n]
-            go = self.desc[lv.node_up] & (self.score_A(A[lv.node]) > self._keep)
-            self.desc[lv.node] = go
-            rows = np.flatnonzero(go)
-            self._rows[n] = rows if len(rows) < len(go) else None
-        keep = self.desc[self.act]
-        self.stats.accelerated = int(keep.sum())
-        qdd[~keep[self.dof_joint]] = 0.0
+            self._descend(n, self.levels[n], A[self.levels[n].node])
 
     def _select(self, n, lv, f):
-        """Top-down restriction (threshold mode): descend into a node whose parent
-        was descended while its score exceeds the threshold. In budget mode all
-        active nodes are evaluated and :meth:`_budget_select` chooses."""
+        """Top-down restriction (``metric="coefficients"``): the metric of each
+        node reached, predicted from its port forces ``f``, decides the rows."""
         reached = self.desc[lv.node_up]
         A = metric_value(self.metric, lv, f)
         self.metric.A[lv.node] = np.where(reached, A, np.nan)
+        rows = self._descend(n, lv, A)
+        self.stats.back_substituted += len(lv.node) if rows is None else len(rows)
+        return rows
+
+    def _descend(self, n, lv, A):
+        """Descend into the nodes of level ``n`` whose parent was descended into and
+        whose score exceeds ``threshold / kappa`` (threshold mode; in budget mode
+        into all, :meth:`_run_heap` chooses). Returns the rows (``None``: all)."""
         if self.budget is not None:
             self.desc[lv.node] = True
-            self.stats.back_substituted += len(reached)
             return None
-        go = reached & (self.score_A(A) > self._keep)
+        go = self.desc[lv.node_up] & (self.score_A(A) > self._keep)
         self.desc[lv.node] = go
         rows = np.flatnonzero(go)
         self._rows[n] = rows if len(rows) < len(go) else None
-        self.stats.back_substituted += len(rows)
-        self.stats.accelerated += len(rows)
         return self._rows[n]
+
+    def _drop_unselected(self):
+        """``qdd = 0`` on the active joints not descended into; counts the rest."""
+        keep = self.desc[self.act]
+        self.stats.accelerated = int(keep.sum())
+        self.data.qdd[:-1][~keep[self.dof_joint]] = 0.0
 
     def _run_heap(self):
         """Budget mode: pop the ``budget`` highest scores from a max-heap, from the
@@ -524,11 +531,7 @@ class AdaptiveDynamics:
                 for c in (tree.left[node - nb], tree.right[node - nb]):
                     if c >= nb and (self.active[c] or c in la_score):
                         heapq.heappush(heap, (-key(c), int(c)))
-        keep = popped[self.act]
-        self.desc[self.act] = keep
-        self.stats.accelerated = int(keep.sum())
-        drop = ~keep[self.dof_joint]
-        self.data.qdd[:-1][drop] = 0.0
+        self.desc[self.act] = popped[self.act]
         self._rows = [np.flatnonzero(popped[lv.node]) for lv in self.levels]
 
     def _lookahead(self, kin):
@@ -547,12 +550,10 @@ class AdaptiveDynamics:
         if self._controller is not None:
             tau = tau + self._tau_full[la.js.v_index]
         assemble(la.levels, la.js, la.kin, np.append(tau, 0.0), la.data)
-        pos = np.full(self.tree.n_nodes + 1, -1)
-        pos[la.F] = np.arange(len(la.F))
         for n, lv in enumerate(la.levels):
             f_ports = self.data.f_J[lv.port_joint] * lv.port_side[:, :, None]
             _, qdd = joint_solution(*la.data.levels[n], f_ports)
-            la.A[pos[lv.node]] = (la.D[lv.joint] * qdd**2).sum(axis=1)
+            la.A[la.rows[n]] = (la.D[lv.joint] * qdd**2).sum(axis=1)
         self.stats.lookahead = len(la.F)
 
     # --- region update ----------------------------------------------------------------
@@ -569,12 +570,10 @@ class AdaptiveDynamics:
         up = np.where(tree.up[act] < 0, tree.n_nodes, tree.up[act])
         # candidates: the highest nodes not descended into that may be rigidified
         # (below a pinned node that was not descended into, its children are)
-        reached_parent = self.desc[up] | self.pinned[up]
-        if self.budget is None:
-            low = self.score_V(self.V[act]) <= self._keep        # and score_A: not descended
-            cand = reached_parent & ~self.desc[act] & low & old[act] & ~self.pinned[act]
-        else:
-            cand = reached_parent & ~self.desc[act] & old[act] & ~self.pinned[act]
+        cand = ((self.desc[up] | self.pinned[up]) & ~self.desc[act] & old[act]
+                & ~self.pinned[act])
+        if self.budget is None:                   # score_A is low: not descended into
+            cand &= self.score_V(self.V[act]) <= self._keep
         release = np.zeros(0, int)
         if self.la is not None:
             F = self.la.F
@@ -590,16 +589,17 @@ class AdaptiveDynamics:
             rigid[lv.node] |= rigid[lv.node_up]
         rigid[-1] = False
         newly = np.flatnonzero(rigid)
-        if len(newly):
-            self._rigidify(newly, q, qd)
+        built = self._rigidify(newly, q, qd) if len(newly) else False
         if len(release):
             self.active[release] = True
             self.since[release] = self.step_count
+        if len(release) or (len(newly) and not built):
             self._build(q)
         self.stats.rigidified, self.stats.released = len(newly), len(release)
 
     def _rigidify(self, nodes, q, qd):
-        """Lock the joints of ``nodes`` and freeze their groups at ``q``."""
+        """Lock the joints of ``nodes`` and freeze their groups at ``q``. Returns
+        whether the region was rebuilt (the locking impulse needs it)."""
         tree, model = self.tree, self.model
         joints = tree.joint[nodes - model.nb]
         old = SimpleNamespace(js=self.js, front=self.front_mobile, top=self.front_top)
@@ -612,9 +612,9 @@ class AdaptiveDynamics:
             self._build(q)
             qd[dofs] = 0.0
             qd[self.js.v_index] = self._locking_impulse(q, old, kin_old)
-        else:
-            qd[dofs] = 0.0
-            self._build(q)
+            return True
+        qd[dofs] = 0.0
+        return False
 
     def _locking_impulse(self, q, old, kin_old):
         """Velocities of the active joints after the inelastic locking impulse
@@ -641,8 +641,8 @@ class AdaptiveDynamics:
         Lsum = np.zeros((len(mob), 3))
         Psum = np.zeros((len(mob), 3))
         np.add.at(Psum, k_new[keep], P[keep])
-        np.add.at(Lsum, k_new[keep], L[keep] + np.cross(c_G[keep] - c_new[k_new[keep]],
-                                                          P[keep]))
+        np.add.at(Lsum, k_new[keep], L[keep] + cross3(c_G[keep] - c_new[k_new[keep]],
+                                                         P[keep]))
         RT = np.swapaxes(R_new, 1, 2)
         h_new = np.concatenate([mv(RT, Lsum), mv(RT, Psum)], axis=1)
         rigid_leaves(self.front_lp, kin.R_rel, kin.p_rel, np.zeros((len(mob), 6)), g.mass[mob],
@@ -672,15 +672,10 @@ def _active_levels(tree, active, jmap, k):
         for L in pieces:
             rows = np.flatnonzero(height[L.node] == h)
             if len(rows):
-                parts.append(L if len(rows) == len(L.node) else _rows(L, rows))
+                parts.append(L if len(rows) == len(L.node) else L.restrict(rows))
         if parts:
             levels += Level.merge(parts, k)
     return levels
-
-
-def _rows(lv, rows):
-    """The batch ``lv`` restricted to ``rows`` (joints already local)."""
-    return replace(lv, **{name: getattr(lv, name)[rows] for name in lv.__dataclass_fields__})
 
 
 def _leaf_plan(tree, nodes, jmap):

@@ -98,12 +98,13 @@ class Level:
                    for name in Level.__dataclass_fields__}))
         return out
 
-    def restrict(self, rows, joint_map):
-        """The batch of ``rows`` only, with joints renumbered by ``joint_map``
-        (joint -> local index; its last entry maps the padding joint ``nj``)."""
+    def restrict(self, rows, joint_map=None):
+        """The batch of ``rows`` only, with joints renumbered by ``joint_map`` if
+        given (joint -> local index; its last entry maps the padding joint ``nj``)."""
         fields = {name: getattr(self, name)[rows] for name in self.__dataclass_fields__}
-        fields["joint"] = joint_map[fields["joint"]]
-        fields["port_joint"] = joint_map[fields["port_joint"]]
+        if joint_map is not None:
+            fields["joint"] = joint_map[fields["joint"]]
+            fields["port_joint"] = joint_map[fields["port_joint"]]
         return Level(**fields)
 
 

@@ -15,7 +15,7 @@ from . import dca
 from . import joints as J
 from .assembly import AssemblyTree
 from .errors import InputError
-from .kinematics import JointSet, kinematics, plan
+from .kinematics import as_joint_set, kinematics
 from .spatial import quat_log, quat_mul
 
 
@@ -55,7 +55,7 @@ def spring_displacements(space, q):
     ``q_spring^-1 q``, as MuJoCo). The spring force is ``-k d``, its energy
     ``k |d|^2 / 2``. ``space``: a model or a :class:`~vdad.kinematics.JointSet`
     (``q`` in its local layout)."""
-    js = space if isinstance(space, JointSet) else plan(space)
+    js = as_joint_set(space)
     out = []
     for s in np.flatnonzero(js.stage_stiffness > 0):
         kind, iq, iv = js.stage_kind[s], js.stage_q[s], js.stage_v[s]
@@ -72,7 +72,7 @@ def spring_displacements(space, q):
 def passive_forces(space, q, qd):
     """Joint spring and damper forces (nv,): ``-K d - D qd`` per stage, with the
     displacements ``d`` of :func:`spring_displacements` (``space`` as there)."""
-    js = space if isinstance(space, JointSet) else plan(space)
+    js = as_joint_set(space)
     tau = -js.damping * qd
     for k, dofs, d in spring_displacements(js, q):
         tau[dofs] -= k * d

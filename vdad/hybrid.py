@@ -107,6 +107,20 @@ class RigidGroups:
                           + Tp[:, :, None] * self.fF[B][:, None, :])
         return int(mark.sum())
 
+    def _climb(self, nodes, active):
+        """Walk from ``nodes`` up through their rigid ancestors, stopping below
+        active nodes (``active``: node mask). Yields, per step, the indices of the
+        walks still climbing, the ancestor reached and whether they came from its
+        ``B`` child (whose top frame is then composed with ``rel_R``, ``rel_p``)."""
+        node = np.array(nodes, int)
+        idx = np.arange(len(node))
+        while len(idx):
+            up = self.up[node]
+            go = ~active[up]
+            idx, node, up = idx[go], node[go], up[go]
+            yield idx, up, self.is_B[node]
+            node = up
+
     def update_forces(self, f_ext, active):
         """Carry changes of the external wrenches ``f_ext`` (nb, 6; None: zero) up
         through the rigid ancestors of each changed body, stopping below active
@@ -116,48 +130,37 @@ class RigidGroups:
             if not self.any_force:
                 return 0
             f_ext = np.zeros((nb, 6))
-        self.any_force = f_ext is not None and bool(np.any(f_ext))
-        f_new = f_ext
-        changed = np.flatnonzero(np.any(f_new != self.f_ext, axis=1))
+        self.any_force = bool(np.any(f_ext))
+        changed = np.flatnonzero(np.any(f_ext != self.f_ext, axis=1))
         if not len(changed):
             return 0
-        d = f_new[changed] - self.f_ext[changed]
-        self.f_ext[changed] = f_new[changed]
+        d = f_ext[changed] - self.f_ext[changed]
+        self.f_ext[changed] = f_ext[changed]
         dN, dF = d[:, :3], d[:, 3:]
         dK = self.com[changed][:, :, None] * dF[:, None, :]
-        node = changed
-        visits = 0
-        while len(node):
-            visits += len(node)
-            np.add.at(self.fN, node, dN)
-            np.add.at(self.fF, node, dF)
-            np.add.at(self.fK, node, dK)
-            up = self.up[node]
-            go = ~active[up]
-            B = self.is_B[node][go]
-            node, dN, dF, dK, up = node[go], dN[go], dF[go], dK[go], up[go]
-            dK = np.where(B[:, None, None],
-                          self.rel_R[up] @ dK + self.rel_p[up][:, :, None] * dF[:, None, :], dK)
-            node = up
+        np.add.at(self.fN, changed, dN)
+        np.add.at(self.fF, changed, dF)
+        np.add.at(self.fK, changed, dK)
+        visits = len(changed)
+        for idx, up, B in self._climb(changed, active):
+            dK[idx] = np.where(B[:, None, None], self.rel_R[up] @ dK[idx]
+                               + self.rel_p[up][:, :, None] * dF[idx][:, None, :], dK[idx])
+            np.add.at(self.fN, up, dN[idx])
+            np.add.at(self.fF, up, dF[idx])
+            np.add.at(self.fK, up, dK[idx])
+            visits += len(idx)
         return visits
 
     def pose_in_group(self, bodies, active):
         """For ``bodies``: the rigid group (front node) holding each, and the body's
         pose ``(R, p)`` in the group frame (world frame for grounded groups)."""
-        node = np.asarray(bodies, int)
-        R = np.broadcast_to(np.eye(3), (len(node), 3, 3)).copy()
-        p = np.zeros((len(node), 3))
-        group = node.copy()
-        idx = np.arange(len(node))
-        while len(idx):
-            up = self.up[node]
-            go = ~active[up]
-            idx, node, up = idx[go], node[go], up[go]
-            B = self.is_B[node]
+        group = np.array(bodies, int)
+        R = np.broadcast_to(np.eye(3), (len(group), 3, 3)).copy()
+        p = np.zeros((len(group), 3))
+        for idx, up, B in self._climb(group, active):
             p[idx] = np.where(B[:, None], self.rel_p[up] + mv(self.rel_R[up], p[idx]), p[idx])
             R[idx] = np.where(B[:, None, None], self.rel_R[up] @ R[idx], R[idx])
             group[idx] = up
-            node = up
         return group, R, p
 
 

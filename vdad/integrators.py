@@ -12,13 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InputError
-from .kinematics import JointSet, plan
+from .kinematics import as_joint_set
 from .spatial import quat_exp, quat_mul
-
-
-def _layout(space):
-    """The :class:`~vdad.kinematics.JointSet` of ``space`` (a model: all its joints)."""
-    return space if isinstance(space, JointSet) else plan(space)
 
 
 def integrate_configuration(space, q, v, dt):
@@ -27,7 +22,7 @@ def integrate_configuration(space, q, v, dt):
     ``space``: a model, or a :class:`~vdad.kinematics.JointSet` whose local state
     ``(q, v)`` is given (the integrators below take the same first argument).
     """
-    js = _layout(space)
+    js = as_joint_set(space)
     lin_q, lin_v, ball_q, ball_v = js.lin_q, js.lin_v, js.ball_q, js.ball_v
     out = q.copy()
     out[lin_q] += v[lin_v] * dt
@@ -39,7 +34,7 @@ def integrate_configuration(space, q, v, dt):
 
 def normalize_configuration(space, q):
     """``q`` with every quaternion renormalised."""
-    ball_q = _layout(space).ball_q
+    ball_q = as_joint_set(space).ball_q
     out = np.array(q, dtype=float)
     if len(ball_q):
         out[ball_q] /= np.linalg.norm(out[ball_q], axis=1, keepdims=True)
@@ -55,7 +50,7 @@ def semi_implicit_euler(space, accel, t, q, qd, dt):
 def configuration_rate(space, q, v):
     """``dq/dt`` (nq,) for velocity ``v``: ``v`` on linear stages and
     ``1/2 quat ⊗ (0, w)`` on ball stages (body-frame ``w``)."""
-    js = _layout(space)
+    js = as_joint_set(space)
     lin_q, lin_v, ball_q, ball_v = js.lin_q, js.lin_v, js.ball_q, js.ball_v
     rate = np.zeros(js.nq)
     rate[lin_q] = v[lin_v]

@@ -217,6 +217,12 @@ def plan(model) -> JointSet:
     return joint_set(model, np.arange(model.nb), model.parent)
 
 
+def as_joint_set(space) -> JointSet:
+    """``space`` itself if it is a :class:`JointSet`, else the set of all joints
+    of the model ``space``."""
+    return space if isinstance(space, JointSet) else plan(space)
+
+
 @dataclass
 class Kinematics:
     """Kinematic quantities of one state of a :class:`JointSet` (shapes in brackets).

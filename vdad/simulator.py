@@ -16,6 +16,7 @@ from . import dca
 from .dynamics import check_vector, default_tree, forward_dynamics
 from .errors import InputError, SimulationError
 from .integrators import get_integrator, normalize_configuration
+from .kinematics import body_poses, joint_kinematics, plan
 
 METHODS = ("dca", "adaptive")
 
@@ -69,8 +70,6 @@ class Simulator:
         the requested bodies' rigid groups are evaluated."""
         if self.adaptive is not None:
             return self.adaptive.body_poses(self.q, bodies)
-        from .kinematics import body_poses, joint_kinematics, plan
-
         js = plan(self.model)
         R, p = body_poses(js, *joint_kinematics(js, self.q)[:2])
         return (R, p) if bodies is None else (R[bodies], p[bodies])
