@@ -6,7 +6,14 @@ when a function needs them.
 
 from .assembly import AssemblyTree
 from .dynamics import forward_dynamics, passive_forces
-from .errors import InputError, ModelError, SimulationError, UnsupportedFeatureError, VdadError
+from .errors import (
+    InputError,
+    ModelError,
+    RenderError,
+    SimulationError,
+    UnsupportedFeatureError,
+    VdadError,
+)
 from .interop.mujoco import from_mujoco, load_mjcf
 from .model import Body, Geom, Joint, Model, Pose
 from .simulator import Simulator
@@ -15,6 +22,6 @@ __version__ = "0.1.0"
 
 __all__ = [
     "AssemblyTree", "Body", "Geom", "InputError", "Joint", "Model", "ModelError", "Pose",
-    "SimulationError", "Simulator", "UnsupportedFeatureError", "VdadError", "forward_dynamics",
+    "RenderError", "SimulationError", "Simulator", "UnsupportedFeatureError", "VdadError", "forward_dynamics",
     "from_mujoco", "load_mjcf", "passive_forces",
 ]

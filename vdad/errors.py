@@ -23,3 +23,8 @@ class UnsupportedFeatureError(VdadError):
 
 class SimulationError(VdadError, RuntimeError):
     """A simulation blew up; the message names the step and the cause."""
+
+
+class RenderError(VdadError, RuntimeError):
+    """A rendered method could not start or run (no EGL/OpenGL); the message says
+    what to install or set."""

@@ -1,0 +1,219 @@
+"""The viewer: a perspective pinhole camera and camera paths (Kim 2008 §5.2, the view ``M``).
+
+Conventions are pyrender's (and OpenGL's): the camera frame has ``x`` to the
+right, ``y`` up and looks down ``-z``; :attr:`Camera.pose` is the camera-to-world
+transform that a pyrender camera node takes; the vertical field of view is
+``yfov`` and pixels are square, so ``fx = fy = (height / 2) / tan(yfov / 2)``.
+Image coordinates in vdad are continuous pixels with the origin at the bottom-left
+corner of the viewport, ``x`` right and ``y`` up, so the viewport is
+``[0, width] x [0, height]`` and pixel ``(i, j)`` (column, row from the bottom)
+covers ``[i, i + 1] x [j, j + 1]``. The depth of a point is its distance in front
+of the camera plane, ``d = -z``.
+
+A camera path is any callable ``t -> Camera``; a :class:`Camera` is itself a
+(constant) path, and :class:`Dolly`, :class:`Orbit` and :class:`Keyframes` move
+it in time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .errors import InputError
+
+
+def _vector(name, value):
+    v = np.asarray(value, dtype=float)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise InputError(f"camera {name} must be 3 finite numbers, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A perspective camera at ``position`` looking at ``target`` with ``up`` the
+    world direction shown upwards; ``yfov`` (rad), ``width`` x ``height`` pixels,
+    near and far clipping planes ``znear`` < ``zfar`` (m)."""
+
+    position: tuple = (3.0, 0.0, 0.0)
+    target: tuple = (0.0, 0.0, 0.0)
+    up: tuple = (0.0, 0.0, 1.0)
+    yfov: float = np.pi / 3
+    width: int = 320
+    height: int = 240
+    znear: float = 0.05
+    zfar: float = 100.0
+
+    def __post_init__(self):
+        pos, tgt, up = (_vector(n, getattr(self, n)) for n in ("position", "target", "up"))
+        forward = tgt - pos
+        if np.linalg.norm(forward) == 0:
+            raise InputError("camera target must differ from its position")
+        if np.linalg.norm(np.cross(forward, up)) <= 1e-12 * np.linalg.norm(forward) * max(
+                np.linalg.norm(up), 1e-300):
+            raise InputError(f"camera up {tuple(up)} is parallel to the viewing direction")
+        if not (np.isfinite(self.yfov) and 0 < self.yfov < np.pi):
+            raise InputError(f"camera yfov must be in (0, pi) rad, got {self.yfov}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if int(value) != value or value < 1:
+                raise InputError(f"camera {name} must be a positive whole number of pixels, "
+                                 f"got {value!r}")
+        if not (np.isfinite(self.znear) and np.isfinite(self.zfar) and 0 < self.znear
+                < self.zfar):
+            raise InputError(f"camera planes need 0 < znear < zfar, got znear={self.znear}, "
+                             f"zfar={self.zfar}")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+
+    def __call__(self, t):
+        """A camera is the constant path: the same camera at every time ``t``."""
+        return self
+
+    def with_resolution(self, width, height):
+        """The same view (position, direction, ``yfov``) at another resolution."""
+        return replace(self, width=width, height=height)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """Camera axes in world coordinates (3, 3): columns ``x`` (right), ``y``
+        (up), ``z`` (backwards)."""
+        pos, tgt, up = (np.asarray(v, float) for v in (self.position, self.target, self.up))
+        z = pos - tgt
+        z /= np.linalg.norm(z)
+        x = np.cross(up, z)
+        x /= np.linalg.norm(x)
+        return np.stack([x, np.cross(z, x), z], axis=1)
+
+    @property
+    def pose(self) -> np.ndarray:
+        """Camera-to-world transform (4, 4): a pyrender camera node's pose."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.rotation, self.position
+        return T
+
+    @property
+    def view(self) -> np.ndarray:
+        """World-to-camera transform (4, 4), the view matrix ``M``."""
+        R = self.rotation
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R.T, -R.T @ np.asarray(self.position, float)
+        return T
+
+    @property
+    def focal(self) -> float:
+        """Focal length in pixels, ``fx = fy``."""
+        return 0.5 * self.height / np.tan(0.5 * self.yfov)
+
+    @property
+    def projection(self) -> np.ndarray:
+        """OpenGL projection matrix (4, 4), as pyrender's ``PerspectiveCamera``
+        with ``aspectRatio = width / height``."""
+        n, f = self.znear, self.zfar
+        t = np.tan(0.5 * self.yfov)
+        P = np.zeros((4, 4))
+        P[0, 0] = self.height / (self.width * t)
+        P[1, 1] = 1.0 / t
+        P[2, 2] = (f + n) / (n - f)
+        P[2, 3] = 2 * f * n / (n - f)
+        P[3, 2] = -1.0
+        return P
+
+    def to_camera(self, points):
+        """Camera coordinates (..., 3) of world ``points`` (..., 3)."""
+        R = self.rotation
+        return (np.asarray(points, float) - np.asarray(self.position, float)) @ R
+
+    def project(self, points):
+        """Image coordinates (..., 2) in pixels and depth (...,) of world ``points``
+        (..., 3) (points behind the camera give meaningless image coordinates)."""
+        c = self.to_camera(points)
+        d = -c[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = self.focal * c[..., :2] / d[..., None]
+        return xy + 0.5 * np.array([self.width, self.height]), d
+
+
+def _interpolate(t, times, values):
+    """Piecewise-linear interpolation of rows ``values`` (k, m) at ``t`` (clamped)."""
+    return np.array([np.interp(t, times, values[:, i]) for i in range(values.shape[1])])
+
+
+@dataclass(frozen=True)
+class Dolly:
+    """The camera moves along its viewing axis at ``speed`` (m/s; positive: away
+    from the target), starting at ``camera`` at time ``start``."""
+
+    camera: Camera
+    speed: float
+    start: float = 0.0
+
+    def __call__(self, t):
+        c = self.camera
+        pos, tgt = np.asarray(c.position, float), np.asarray(c.target, float)
+        back = (pos - tgt) / np.linalg.norm(pos - tgt)
+        s = max(float(t) - self.start, 0.0) * self.speed
+        s = max(s, -np.linalg.norm(pos - tgt) * (1 - 1e-6))      # never pass the target
+        return replace(c, position=tuple(pos + s * back))
+
+
+@dataclass(frozen=True)
+class Orbit:
+    """The camera circles ``camera.target`` about the world axis ``camera.up``
+    once every ``period`` seconds (negative: clockwise), keeping its distance and
+    height."""
+
+    camera: Camera
+    period: float
+
+    def __post_init__(self):
+        if not (np.isfinite(self.period) and self.period != 0):
+            raise InputError(f"orbit period must be a non-zero number of seconds, "
+                             f"got {self.period}")
+
+    def __call__(self, t):
+        c = self.camera
+        axis = np.asarray(c.up, float) / np.linalg.norm(c.up)
+        tgt = np.asarray(c.target, float)
+        r = np.asarray(c.position, float) - tgt
+        a = 2 * np.pi * float(t) / self.period
+        rot = (r * np.cos(a) + np.cross(axis, r) * np.sin(a)
+               + axis * (axis @ r) * (1 - np.cos(a)))
+        return replace(c, position=tuple(tgt + rot))
+
+
+@dataclass(frozen=True)
+class Keyframes:
+    """Cameras at increasing ``times``, interpolated linearly in between
+    (position, target, up and ``yfov``) and held before the first and after the
+    last; resolution and planes are the first camera's."""
+
+    times: tuple
+    cameras: tuple
+
+    def __post_init__(self):
+        times = np.asarray(self.times, float)
+        if len(times) != len(self.cameras) or len(times) == 0:
+            raise InputError(f"keyframes need as many times as cameras (at least one), got "
+                             f"{len(times)} times and {len(self.cameras)} cameras")
+        if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+            raise InputError(f"keyframe times must be finite and increasing, got {self.times}")
+
+    def __call__(self, t):
+        times = np.asarray(self.times, float)
+        rows = np.array([[*c.position, *c.target, *c.up, c.yfov] for c in self.cameras])
+        v = _interpolate(float(t), times, rows)
+        return replace(self.cameras[0], position=tuple(v[:3]), target=tuple(v[3:6]),
+                       up=tuple(v[6:9]), yfov=float(v[9]))
+
+
+def camera_at(path, t) -> Camera:
+    """The camera of ``path`` (a :class:`Camera` or a callable ``t -> Camera``) at
+    time ``t``, checked."""
+    camera = path(t)
+    if not isinstance(camera, Camera):
+        raise InputError(f"a camera path must return a vdad.camera.Camera at time {t}, got "
+                         f"{type(camera).__name__}")
+    return camera
