@@ -22,6 +22,6 @@ __version__ = "0.1.0"
 
 __all__ = [
     "AssemblyTree", "Body", "Geom", "InputError", "Joint", "Model", "ModelError", "Pose",
-    "RenderError", "SimulationError", "Simulator", "UnsupportedFeatureError", "VdadError", "forward_dynamics",
-    "from_mujoco", "load_mjcf", "passive_forces",
+    "RenderError", "SimulationError", "Simulator", "UnsupportedFeatureError", "VdadError",
+    "forward_dynamics", "from_mujoco", "load_mjcf", "passive_forces",
 ]

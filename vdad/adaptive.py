@@ -20,9 +20,14 @@ a hybrid body's leaf (T19)-(T20), with data cached in :mod:`vdad.hybrid`. A step
    look-ahead score is high are released; hysteresis ``kappa`` and a minimum
    dwell time keep the set from flickering.
 
-Scores put both metrics in the units of a displacement per step (theory §7 with
-``N_M = 1``): ``dt^2 sqrt(A(C))`` and ``dt sqrt(V(C))``. ``docs/adaptive.md``
-states the design choices, derivations and measurements.
+Scores put both metrics in the units of a displacement per step: ``dt^2 sqrt(A(C))``
+and ``dt sqrt(V(C))`` (theory §7 with ``N_M = 1``). With a ``coverage`` estimator
+(:mod:`vdad.visibility`) they become the paper's view-dependent metrics
+``A_M(C) = dt^2 N_M(C) sqrt(A(C))`` and ``V_M(C) = dt N_M(C) sqrt(V(C))``
+(Kim 2008 §5.2), in pixels times displacement, with ``N_M`` evaluated at the
+start of each step from the configuration the viewer sees then (the last frame).
+``docs/adaptive.md`` and ``docs/visibility.md`` state the design choices,
+derivations and measurements.
 """
 
 from __future__ import annotations
@@ -54,7 +59,7 @@ from .spatial import cross3, mv
 
 POLICIES = ("momentum", "zero")
 METRICS = ("coefficients", "direct")
-PHASES = ("forces", "kinematics", "leaves", "assemble", "back_substitute", "select",
+PHASES = ("visibility", "forces", "kinematics", "leaves", "assemble", "back_substitute", "select",
           "integrate", "region")
 
 
@@ -67,7 +72,8 @@ class StepStats:
     back_substituted: nodes evaluated by the two passes; force_update: node
     visits carrying force changes up rigid regions; lookahead: front joints
     evaluated; rigidified / released: nodes that changed state; times: seconds
-    per phase (:data:`PHASES`; ``select``: look-ahead and budget heap).
+    per phase (:data:`PHASES`; ``visibility``: the coverage ``N_M``; ``select``:
+    look-ahead and budget heap).
     """
 
     active_joints: int = 0
@@ -165,11 +171,14 @@ class AdaptiveDynamics:
     paper's algorithm); ``"direct"`` back-substitutes the whole active region and
     sums (T14) bottom-up: the same values and decisions, cheaper in numpy, whose
     cost is per level rather than per node (``docs/adaptive.md``).
+    coverage: None (``N_M = 1``: view-independent) or an estimator
+    ``(t, q, adaptive) -> N_M`` per node (:mod:`vdad.visibility`), evaluated
+    every ``coverage_every`` steps and whenever the active region changes.
     """
 
     def __init__(self, model, dt, tree=None, threshold=None, budget=None, weights=None,
                  velocity_weights=None, kappa=4.0, dwell=10, policy="momentum", lookahead=True,
-                 metric="coefficients"):
+                 metric="coefficients", coverage=None, coverage_every=1):
         if (threshold is None) == (budget is None):
             raise InputError("adaptive dynamics needs exactly one of threshold= or budget=")
         if threshold is not None and not (_real(threshold) and threshold >= 0):
@@ -184,6 +193,13 @@ class AdaptiveDynamics:
             raise InputError(f"unknown rigidification policy {policy!r}; choose one of {POLICIES}")
         if metric not in METRICS:
             raise InputError(f"unknown metric evaluation {metric!r}; choose one of {METRICS}")
+        if coverage is not None and not callable(coverage):
+            raise InputError(f"coverage must be a callable (t, q, adaptive) -> N_M, got "
+                             f"{type(coverage).__name__}")
+        if not (_real(coverage_every) and int(coverage_every) == coverage_every >= 1):
+            raise InputError(f"coverage_every must be a whole number of steps >= 1, got "
+                             f"{coverage_every!r}")
+        self.coverage, self.coverage_every = coverage, int(coverage_every)
         self.predictive = metric == "coefficients"
         self.model = model
         self.tree = default_tree(model) if tree is None else tree
@@ -207,6 +223,8 @@ class AdaptiveDynamics:
         self.metric = MetricData(np.zeros((tree.n_blocks, 6, 6)), np.zeros((tree.n_slots, 6)),
                                  np.zeros(n + 1), None, np.full(n + 1, np.nan))
         self.V = np.zeros(n + 1)
+        self.N_M = np.ones(n + 1)                        # coverage per node (pixels)
+        self._stale_coverage = True
         # a free joint to the world is never rigidified: welding a floating base to
         # the world would stop it (and take its momentum); so are its ancestors
         self.pinned = np.zeros(n + 1, bool)
@@ -273,6 +291,7 @@ class AdaptiveDynamics:
         self.metric.eta[front], self.V[front] = 0.0, 0.0
         self.la = self._lookahead_plan(q) if self.lookahead else None
         self._rows = [None] * len(self.levels)
+        self._stale_coverage = True
 
     def _lookahead_plan(self, q):
         """Internal front nodes, each evaluated as one node over its two rigid
@@ -347,13 +366,20 @@ class AdaptiveDynamics:
             self._build(q)
         bodies = np.arange(self.model.nb) if bodies is None else np.asarray(bodies, int)
         group, R_in, p_in = self.groups.pose_in_group(bodies, self.active)
+        R_top, p_top = self.group_poses(q, group)
+        return R_top @ R_in, p_top + mv(R_top, p_in)
+
+    def group_poses(self, q, nodes):
+        """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of the frames of rigid ``nodes``
+        (front nodes or bodies: their top body's frame; the world for grounded
+        groups) at ``q``, from the active joints only."""
         js = self.js
         R_top, p_top = body_poses(js, *joint_kinematics(js, q[js.q_index])[:2])
         R_top = np.concatenate([R_top, np.eye(3)[None]])          # index k: the world
         p_top = np.concatenate([p_top, np.zeros((1, 3))])
-        top = np.where(self.groups.grounded[group], js.k,
-                       self.jmap[np.maximum(self.tree.top[group], 0)])
-        return R_top[top] @ R_in, p_top[top] + mv(R_top[top], p_in)
+        top = np.where(self.groups.grounded[nodes], js.k,
+                       self.jmap[np.maximum(self.tree.top[nodes], 0)])
+        return R_top[top], p_top[top]
 
     # --- one step -------------------------------------------------------------------
 
@@ -368,6 +394,12 @@ class AdaptiveDynamics:
         self._q, self._qd = q, qd
         self._eval, self._eval_time = 0, 0.0
         self._controller, self._external = controller, external
+        if self.coverage is not None and (self._stale_coverage
+                                          or self.step_count % self.coverage_every == 0):
+            t0 = time.perf_counter()
+            self.N_M = self._checked_coverage(t, q)
+            self._stale_coverage = False
+            st.times["visibility"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         q_a, qd_a = integrate(js, self._accelerations, t, q[js.q_index], qd[js.v_index],
                               self.dt)
@@ -378,6 +410,15 @@ class AdaptiveDynamics:
         self._update_region(q, qd)
         st.times["region"] = time.perf_counter() - t0
         return st
+
+    def _checked_coverage(self, t, q):
+        N = np.asarray(self.coverage(t, q, self), float)
+        if N.shape != (self.tree.n_nodes + 1,):
+            raise InputError(f"coverage must return ({self.tree.n_nodes + 1},) values per "
+                             f"node, got shape {N.shape}")
+        if np.any(N < 0):
+            raise InputError("coverage returned negative pixel counts")
+        return N
 
     def _accelerations(self, t, q_a, qd_a):
         """``qdd`` of the active joints (local layout) at a local state; the first
@@ -448,13 +489,15 @@ class AdaptiveDynamics:
         """Score an active node needs to keep its accelerations: ``threshold / kappa``."""
         return self.threshold / self.kappa
 
-    def score_A(self, A):
-        """``dt^2 sqrt(A)``: the displacement per step the accelerations cause."""
-        return self.dt**2 * np.sqrt(np.maximum(A, 0.0))
+    def score_A(self, A, nodes):
+        """``dt^2 N_M sqrt(A)`` of ``nodes``: the displacement per step their
+        accelerations cause, times their coverage (Kim 2008 §5.2, ``A_M``)."""
+        return self.dt**2 * self.N_M[nodes] * np.sqrt(np.maximum(A, 0.0))
 
-    def score_V(self, V):
-        """``dt sqrt(V)``: the displacement per step the velocities cause."""
-        return self.dt * np.sqrt(np.maximum(V, 0.0))
+    def score_V(self, V, nodes):
+        """``dt N_M sqrt(V)`` of ``nodes``: the displacement per step their
+        velocities cause, times their coverage (Kim 2008 §5.2, ``V_M``)."""
+        return self.dt * self.N_M[nodes] * np.sqrt(np.maximum(V, 0.0))
 
     def _direct_metric(self):
         """(T14) summed bottom-up over the active region from the computed ``qdd``,
@@ -489,7 +532,7 @@ class AdaptiveDynamics:
         if self.budget is not None:
             self.desc[lv.node] = True
             return None
-        go = self.desc[lv.node_up] & (self.score_A(A) > self._keep)
+        go = self.desc[lv.node_up] & (self.score_A(A, lv.node) > self._keep)
         self.desc[lv.node] = go
         rows = np.flatnonzero(go)
         self._rows[n] = rows if len(rows) < len(go) else None
@@ -510,12 +553,12 @@ class AdaptiveDynamics:
         self._popped = np.zeros(tree.n_nodes + 1, bool)
         la_score = {}
         if self.la is not None:
-            la_score = dict(zip(self.la.F.tolist(), self.score_A(self.la.A).tolist(),
+            la_score = dict(zip(self.la.F.tolist(), self.score_A(self.la.A, self.la.F).tolist(),
                                 strict=True))
 
         def key(node):
             if self.active[node]:
-                return self.kappa * float(self.score_A(self.metric.A[node]))
+                return self.kappa * float(self.score_A(self.metric.A[node], node))
             return la_score.get(node, -1.0)
 
         heap = [(-key(r), int(r)) for r in np.flatnonzero(tree.up == -1)
@@ -573,13 +616,13 @@ class AdaptiveDynamics:
         cand = ((self.desc[up] | self.pinned[up]) & ~self.desc[act] & old[act]
                 & ~self.pinned[act])
         if self.budget is None:                   # score_A is low: not descended into
-            cand &= self.score_V(self.V[act]) <= self._keep
+            cand &= self.score_V(self.V[act], act) <= self._keep
         release = np.zeros(0, int)
         if self.la is not None:
             F = self.la.F
             parent_desc = self.desc[np.where(tree.up[F] < 0, tree.n_nodes, tree.up[F])]
             if self.budget is None:
-                hit = self.score_A(self.la.A) > self.threshold
+                hit = self.score_A(self.la.A, F) > self.threshold
             else:
                 hit = self._popped[F]
             release = F[parent_desc & hit & old[F]]

@@ -18,15 +18,27 @@ from .errors import InputError, SimulationError
 from .integrators import get_integrator, normalize_configuration
 from .kinematics import body_poses, joint_kinematics, plan
 
-METHODS = ("dca", "adaptive")
+METHODS = ("dca", "adaptive", "view-bvh", "view-oq")
+VIEW_OPTIONS = {"view-bvh": ("volume", "estimate", "resolution"),
+                "view-oq": ("counting", "resolution")}
 
 
 class Simulator:
     """Step ``model`` from ``(q0, qd0)`` with time step ``dt``.
 
-    method: ``"dca"`` (exact forward dynamics by the DCA) or ``"adaptive"``
+    method: ``"dca"`` (exact forward dynamics by the DCA), ``"adaptive"``
     (:class:`~vdad.adaptive.AdaptiveDynamics`, with ``threshold=`` or
-    ``budget=`` and its other options as keyword arguments).
+    ``budget=`` and its other options as keyword arguments), or the
+    view-dependent methods of Kim 2008 §5, adaptive dynamics whose metrics are
+    weighted by each node's screen coverage ``N_M`` under ``camera`` (a
+    :class:`~vdad.camera.Camera` or a path ``t -> Camera``): ``"view-bvh"``
+    from bounding volumes (options ``volume`` = ``"sphere"``, ``"obb"`` or
+    ``"aabb"``, ``estimate`` = ``"min"``, ``"node"`` or ``"bodies"``;
+    :class:`~vdad.visibility.BoundingVolumes`) and ``"view-oq"`` from rendered
+    pixel counts with the ``environment`` as occluder (option ``counting`` =
+    ``"queries"`` or ``"merged"``; :class:`~vdad.visibility.RenderedCounts`,
+    needs EGL). Both take ``resolution`` = (width, height) of the counting
+    (default: the camera's) and ``coverage_every`` (steps between evaluations).
     integrator: ``"semi-implicit"`` (symplectic Euler) or ``"rk4"``.
     tree: assembly tree (default: balanced).
 
@@ -36,11 +48,19 @@ class Simulator:
 
     def __init__(self, model, q0=None, qd0=None, dt=1e-3, method="dca",
                  integrator="semi-implicit", tree=None, controller=None, external=None,
-                 **adaptive_options):
+                 camera=None, environment=None, **adaptive_options):
         if method not in METHODS:
             raise InputError(f"unknown method {method!r}; choose one of {METHODS}")
         if adaptive_options and method == "dca":
             raise InputError(f"options {sorted(adaptive_options)} need method='adaptive'")
+        view = {k: adaptive_options.pop(k) for k in ("volume", "estimate", "resolution",
+                                                     "counting") if k in adaptive_options}
+        wrong = sorted(set(view) - set(VIEW_OPTIONS.get(method, ())))
+        if wrong:
+            raise InputError(f"options {wrong} do not apply to method {method!r}")
+        if method.startswith("view") and camera is None:
+            raise InputError(f"method {method!r} needs a camera (vdad.camera.Camera or a "
+                             f"callable t -> Camera)")
         if not np.isfinite(dt) or dt <= 0:
             raise InputError(f"dt must be a positive finite number, got {dt}")
         self.model = model
@@ -59,9 +79,20 @@ class Simulator:
         self.step_count = 0
         self.history = []
         self.adaptive = None
-        if method == "adaptive":
+        self.camera, self.environment = camera, environment
+        if method != "dca":
             from .adaptive import AdaptiveDynamics
 
+            if method == "view-bvh":
+                from .visibility import BoundingVolumes
+
+                adaptive_options["coverage"] = BoundingVolumes(self.tree, camera, **view)
+            elif method == "view-oq":
+                from .visibility import RenderedCounts
+
+                adaptive_options["coverage"] = RenderedCounts(
+                    self.tree, camera, environment, method=view.get("counting", "queries"),
+                    resolution=view.get("resolution"))
             self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
 
     def body_poses(self, bodies=None):

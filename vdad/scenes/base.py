@@ -16,6 +16,9 @@ class Scene:
     name, description: what the scene models (shown by ``vdad run``).
     model, q0, qd0, dt: the model and its initial state and time step.
     controller, external: force callables passed to :class:`~vdad.Simulator`.
+    camera: the viewer (:class:`~vdad.camera.Camera` or a path ``t -> Camera``)
+    and environment: static occluders (:class:`~vdad.environment.Environment`),
+    both for the view-dependent methods and for pictures.
     params: the parameters the scene was built with.
     """
 
@@ -27,10 +30,14 @@ class Scene:
     dt: float
     controller: object = None
     external: object = None
+    camera: object = None
+    environment: object = None
     params: dict = field(default_factory=dict)
 
     def simulator(self, **options) -> Simulator:
         """A :class:`~vdad.Simulator` started at this scene's initial state."""
         options.setdefault("dt", self.dt)
+        options.setdefault("camera", self.camera)
+        options.setdefault("environment", self.environment)
         return Simulator(self.model, self.q0, self.qd0, controller=self.controller,
                          external=self.external, **options)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..camera import Camera
 from ..errors import InputError
 from ..model import Body, Geom, Joint, Model, Pose
 from ..spatial import quat_exp
@@ -11,7 +12,8 @@ from .base import Scene
 
 
 def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0,
-             axes="y", joint="revolute", damping=0.0, dt=1e-3, gravity=9.81):
+             axes="y", joint="revolute", damping=0.0, dt=1e-3, gravity=9.81,
+             camera_distance=None, resolution=(320, 240)):
     """A chain of ``n_bodies`` capsule links hanging from a fixed point.
 
     Each link is a solid capsule-like rod of ``link_mass`` and ``link_length``
@@ -21,6 +23,10 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
     (``joint="spherical"``), with optional viscous ``damping``. The chain is
     released at rest with its first joint at ``angle`` rad (for ``"alternate"``
     the second joint too, at half the angle, so that it swings in 3D).
+
+    The camera looks at the chain's middle along +y (square to the swing plane)
+    from ``camera_distance`` (default: the whole chain in view, 1.1 chain
+    lengths), at ``resolution`` pixels with a 60 degree vertical field of view.
     """
     if int(n_bodies) != n_bodies or n_bodies < 1:
         raise InputError(f"n_bodies must be a positive integer, got {n_bodies}")
@@ -33,6 +39,12 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
         raise InputError(f"joint must be 'revolute' or 'spherical', got {joint!r}")
     n = int(n_bodies)
     L, m = float(link_length), float(link_mass)
+    D = 1.1 * n * L if camera_distance is None else float(camera_distance)
+    if not np.isfinite(D) or D <= 0:
+        raise InputError(f"camera_distance must be positive, got {camera_distance}")
+    camera = Camera(position=(0.0, -D, -n * L / 2), target=(0.0, 0.0, -n * L / 2),
+                    width=resolution[0], height=resolution[1], znear=0.01 * L,
+                    zfar=10 * (D + n * L))
     r = L / 10 if radius is None else float(radius)
     Ixx = m * (3 * r**2 + L**2) / 12
     inertia = np.diag([Ixx, Ixx, m * r**2 / 2])
@@ -57,6 +69,7 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
         else:
             q0[i:i + 4] = quat_exp(a * axis_of(j))
     return Scene("pendulum", f"{n}-link pendulum of {L} m, {m} kg capsule links, released from "
-                 f"{angle} rad", model, q0, np.zeros(model.nv), dt,
+                 f"{angle} rad", model, q0, np.zeros(model.nv), dt, camera=camera,
                  params=dict(n_bodies=n, link_length=L, link_mass=m, radius=r, angle=angle,
-                             axes=axes, joint=joint, damping=damping, gravity=gravity))
+                             axes=axes, joint=joint, damping=damping, gravity=gravity,
+                             camera_distance=D, resolution=tuple(resolution)))
