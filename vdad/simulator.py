@@ -126,7 +126,8 @@ class Simulator:
                                                            self.controller, self.external))
             except InputError as exc:
                 raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): a "
-                                      f"force callable returned bad values: {exc}") from exc
+                                      f"callable (forces, camera or coverage) returned bad "
+                                      f"values: {exc}") from exc
             if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
                 self._blow_up(q, qd)
             self.q, self.qd = q, qd

@@ -1,0 +1,103 @@
+"""Exact projected areas (vdad.projection) against ray casting through pixel centres
+(tests/raycast.py), against the closed-form ellipse area, and as the resolution grows."""
+
+import numpy as np
+import pytest
+from raycast import box_pixels, sphere_pixels
+from strategies import random_rotation
+
+from vdad.camera import Camera
+from vdad.projection import box_areas, clip_polygons, polygon_areas, sphere_areas
+
+CAM = Camera(width=320, height=240)          # f = 207.8 px; half-width 2.31 m at 3 m
+# (name, centre in camera coordinates, radius): the cases of theory §7
+SPHERES = [
+    ("centred", (0.0, 0.0, -3.0), 0.5),
+    ("off-axis", (0.8, 0.5, -3.0), 0.4),
+    ("one edge", (2.3, 0.0, -3.0), 0.5),
+    ("two edges", (2.2, 1.6, -3.0), 0.5),
+    ("near plane", (0.2, 0.1, -0.4), 0.37),
+    ("camera plane", (0.1, 0.0, -0.3), 0.4),
+    ("camera inside", (0.1, 0.0, -0.2), 1.0),
+    ("inside, cap in view", (0.0, 0.0, 0.3), 0.45),
+]
+
+
+@pytest.mark.parametrize("name,C,r", SPHERES, ids=[s[0] for s in SPHERES])
+def test_sphere_area_equals_pixel_count(name, C, r):
+    C = np.array(C)
+    area = sphere_areas(CAM, C[None], np.array([r]))[0]
+    pixels = sphere_pixels(CAM, C, r)
+    assert pixels > 1000
+    assert abs(area - pixels) <= 0.01 * pixels, (name, area, pixels)
+    if pixels < CAM.width * CAM.height:                      # converges with resolution
+        fine = CAM.with_resolution(4 * CAM.width, 4 * CAM.height)
+        fine_area = sphere_areas(fine, C[None], np.array([r]))[0]
+        assert fine_area == pytest.approx(16 * area, rel=1e-9)
+        assert abs(fine_area - sphere_pixels(fine, C, r)) <= 0.25 * abs(area - pixels) * 16 + 40
+
+
+def test_sphere_ellipse_closed_form():
+    """Wholly in view: the exact area pi f^2 r^2 sqrt(l^2 - r^2) / (d^2 - r^2)^(3/2)."""
+    rng = np.random.default_rng(1)
+    C = np.column_stack([rng.uniform(-0.5, 0.5, 50), rng.uniform(-0.4, 0.4, 50),
+                         -rng.uniform(3, 6, 50)])
+    r = rng.uniform(0.05, 0.5, 50)
+    l2, d = np.sum(C * C, axis=1), -C[:, 2]
+    exact = np.pi * CAM.focal**2 * r**2 * np.sqrt(l2 - r**2) / (d**2 - r**2) ** 1.5
+    np.testing.assert_allclose(sphere_areas(CAM, C, r), exact, rtol=1e-11)
+
+
+def test_sphere_behind_or_away_covers_nothing():
+    C = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, -0.02], [10.0, 0.0, -3.0], [0, 0, -3.0]])
+    r = np.array([0.5, 0.01, 0.5, -1.0])                     # last: empty volume
+    np.testing.assert_array_equal(sphere_areas(CAM, C, r), 0.0)
+
+
+BOXES = [
+    ("centred", (0.0, 0.0, -3.0), (0.5, 0.4, 0.3)),
+    ("off-axis", (0.9, -0.6, -3.5), (0.4, 0.3, 0.5)),
+    ("one edge", (0.0, 1.7, -3.0), (0.5, 0.4, 0.3)),
+    ("two edges", (-2.2, -1.6, -3.0), (0.6, 0.5, 0.4)),
+    ("near plane", (0.1, 0.0, -0.45), (0.3, 0.25, 0.42)),
+    ("camera inside", (0.1, 0.05, -0.2), (1.0, 0.8, 0.9)),
+]
+
+
+@pytest.mark.parametrize("name,c,h", BOXES, ids=[b[0] for b in BOXES])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_box_area_equals_pixel_count(name, c, h, seed):
+    R = random_rotation(np.random.default_rng(seed)) if name != "camera inside" else np.eye(3)
+    c, h = np.array(c), np.array(h)
+    area = box_areas(CAM, c[None], R[None], h[None])[0]
+    pixels = box_pixels(CAM, c, R, h)
+    assert pixels > 1000
+    assert abs(area - pixels) <= 0.01 * pixels, (name, area, pixels)
+
+
+def test_box_behind_or_empty_covers_nothing():
+    c = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, -3.0], [0.0, 9.0, -3.0]])
+    h = np.array([[0.5, 0.5, 0.5], [-1.0, -1.0, -1.0], [0.5, 0.5, 0.5]])
+    R = np.broadcast_to(np.eye(3), (3, 3, 3))
+    np.testing.assert_array_equal(box_areas(CAM, c, R, h), 0.0)
+
+
+def test_batches_equal_single_items():
+    """Batched areas equal the same volumes one at a time (fast and slow paths mixed)."""
+    C = np.array([s[1] for s in SPHERES])
+    r = np.array([s[2] for s in SPHERES])
+    single = [sphere_areas(CAM, C[i:i + 1], r[i:i + 1])[0] for i in range(len(r))]
+    np.testing.assert_allclose(sphere_areas(CAM, C, r), single, rtol=1e-12)
+    c = np.array([b[1] for b in BOXES])
+    h = np.array([b[2] for b in BOXES])
+    R = np.stack([random_rotation(np.random.default_rng(i)) for i in range(len(c))])
+    single = [box_areas(CAM, c[i:i + 1], R[i:i + 1], h[i:i + 1])[0] for i in range(len(c))]
+    np.testing.assert_allclose(box_areas(CAM, c, R, h), single, rtol=1e-12)
+
+
+def test_clip_polygons():
+    square = np.array([[[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]])
+    assert polygon_areas(clip_polygons(square, (1.0, 0.0), 0.5))[0] == pytest.approx(3.0)
+    assert polygon_areas(clip_polygons(square, (1.0, 1.0), 3.0))[0] == pytest.approx(0.5)
+    assert polygon_areas(clip_polygons(square, (1.0, 0.0), 5.0))[0] == 0.0
+    assert polygon_areas(clip_polygons(square, (1.0, 0.0), -1.0))[0] == pytest.approx(4.0)

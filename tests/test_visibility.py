@@ -1,0 +1,154 @@
+"""Coverage N_M (vdad.visibility) and the view-dependent methods: cached group-frame
+volumes equal a full evaluation, node values are sums over bodies, and the methods
+rigidify what the viewer cannot see and approach the full DCA in full view."""
+
+import numpy as np
+import pytest
+
+from vdad import Simulator
+from vdad.bounding import areas, body_volumes, place
+from vdad.camera import Camera
+from vdad.errors import InputError, SimulationError
+from vdad.scenes import pendulum
+from vdad.visibility import BoundingVolumes, sum_up
+
+
+@pytest.mark.parametrize("volume", ["sphere", "obb"])
+def test_cached_node_volumes_equal_full_evaluation(volume):
+    """With adaptive dynamics, rigid front nodes keep their volume in the group frame;
+    their N1 equals the one merged from all bodies' placed volumes at the same q."""
+    scene = pendulum(n_bodies=48, axes="alternate", angle=1.2)
+    sim = scene.simulator(method="view-bvh", volume=volume, estimate="node",
+                          threshold=2e-3, dwell=3)
+    full = BoundingVolumes(sim.tree, scene.camera, volume, estimate="node")
+    internal_fronts = 0
+    sim.step()                                       # builds the active region
+    for step in range(120):
+        ad = sim.adaptive
+        q, nodes = sim.q.copy(), np.concatenate([ad.front, ad.act])
+        internal_fronts += np.sum(ad.front >= scene.model.nb)
+        sim.step()
+        if step % 10 == 9:
+            np.testing.assert_allclose(ad.N_M[nodes], full(sim.t - sim.dt, q)[nodes],
+                                       rtol=1e-9, atol=1e-9)
+    assert internal_fronts > 0                       # rigid groups were really placed
+
+
+@pytest.mark.parametrize("volume", ["sphere", "obb", "aabb"])
+def test_node_coverage_sums_bodies(volume):
+    scene = pendulum(n_bodies=30, axes="alternate")
+    sim = scene.simulator()
+    sim.step(200)
+    cov = BoundingVolumes(sim.tree, scene.camera, volume, estimate="bodies")
+    N = cov(0.0, sim.q)
+    per_body = areas(place(body_volumes(scene.model, volume), *sim.body_poses()), scene.camera)
+    assert np.all(per_body > 0)
+    np.testing.assert_allclose(N, sum_up(sim.tree, per_body))
+    # every node holds a contiguous set of bodies: the root holds them all
+    assert N[sim.tree.n_nodes - 1] == pytest.approx(per_body.sum())
+    N_min = BoundingVolumes(sim.tree, scene.camera, volume, estimate="min")(0.0, sim.q)
+    N_node = BoundingVolumes(sim.tree, scene.camera, volume, estimate="node")(0.0, sim.q)
+    np.testing.assert_array_equal(N_min, np.fmin(N_node, N))
+    np.testing.assert_allclose(N_node[:scene.model.nb], per_body)      # leaves: the bodies
+
+
+def _run(scene, camera, threshold, steps=300, **options):
+    sim = scene.simulator(method="view-bvh", camera=camera, threshold=threshold, **options)
+    sim.step(steps)
+    return sim, np.array([s.active_joints for s in sim.history])
+
+
+def test_far_or_looking_away_rigidifies_everything():
+    scene = pendulum(n_bodies=20)
+    cam = scene.camera
+    target = np.array(cam.target)
+    away = Camera(position=cam.position, target=tuple(2 * np.array(cam.position) - target),
+                  up=cam.up)
+    far = Camera(position=tuple(target + 2000 * (np.array(cam.position) - target)),
+                 target=cam.target, up=cam.up)
+    for camera in (away, far):
+        sim, active = _run(scene, camera, threshold=1e-3)
+        assert active[-100:].max() <= 1, active[-100:]
+    sim, near = _run(scene, cam, threshold=1e-3)
+    assert near[-100:].mean() >= 5
+
+
+def test_close_up_approaches_full_dca():
+    """In full view, as the threshold falls, the active set grows to all joints and
+    the trajectory to the DCA's."""
+    scene = pendulum(n_bodies=20, axes="alternate")
+    dca = scene.simulator()
+    dca.step(300)
+    tip_dca = dca.body_poses([19])[1][0]
+    errors, actives = [], []
+    for threshold in (1e-2, 1e-4, 1e-7, 0.0):
+        sim, active = _run(scene, scene.camera, threshold)
+        actives.append(active.mean())
+        errors.append(np.linalg.norm(sim.body_poses([19])[1][0] - tip_dca))
+    assert actives == sorted(actives) and actives[-1] == 20
+    assert errors[-1] < 1e-12 and errors[-2] < 1e-6 and errors[0] > 1e-3
+    assert errors == sorted(errors, reverse=True)
+
+
+def test_distance_orders_active_joints():
+    """The same threshold: the farther the viewer, the fewer active joints."""
+    scene = pendulum(n_bodies=20, axes="alternate")
+    cam, target = scene.camera, np.array(scene.camera.target)
+    means = []
+    for scale in (1.0, 4.0, 16.0):
+        pos = target + scale * (np.array(cam.position) - target)
+        means.append(_run(scene, Camera(position=tuple(pos), target=cam.target),
+                          threshold=1e-4)[1].mean())
+    assert means[0] > means[1] > means[2], means
+
+
+def test_view_method_errors():
+    scene = pendulum(n_bodies=5)
+    with pytest.raises(InputError, match="needs a camera"):
+        Simulator(scene.model, method="view-bvh", threshold=1e-3)
+    with pytest.raises(InputError, match=r"options \['volume'\] do not apply to method "
+                                         "'adaptive'"):
+        scene.simulator(method="adaptive", threshold=1e-3, volume="obb")
+    with pytest.raises(InputError, match="unknown bounding volume"):
+        scene.simulator(method="view-bvh", threshold=1e-3, volume="cone")
+    with pytest.raises(InputError, match="unknown coverage estimate"):
+        scene.simulator(method="view-bvh", threshold=1e-3, estimate="max")
+    with pytest.raises(InputError, match="resolution"):
+        scene.simulator(method="view-bvh", threshold=1e-3, resolution=(320, 0))
+    with pytest.raises(InputError, match="coverage_every"):
+        scene.simulator(method="view-bvh", threshold=1e-3, coverage_every=0)
+    with pytest.raises(SimulationError, match="must return a vdad.camera.Camera"):
+        scene.simulator(method="view-bvh", threshold=1e-3, camera=lambda t: None).step()
+    sim = Simulator(scene.model, method="adaptive", threshold=1e-3,
+                    coverage=lambda t, q, ad: np.ones(3))
+    with pytest.raises(SimulationError, match="coverage must return"):
+        sim.step()
+
+
+def test_camera_checks_and_paths():
+    with pytest.raises(InputError, match="target must differ"):
+        Camera(position=(1, 0, 0), target=(1, 0, 0))
+    with pytest.raises(InputError, match="parallel"):
+        Camera(position=(0, 0, 3), target=(0, 0, 0), up=(0, 0, 1))
+    with pytest.raises(InputError, match="znear"):
+        Camera(znear=0.0)
+    cam = Camera(position=(3.0, 0.0, 1.0), target=(0.0, 0.0, 1.0))
+    # view and pose are inverse; the target projects to the viewport centre
+    np.testing.assert_allclose(cam.view @ cam.pose, np.eye(4), atol=1e-15)
+    xy, d = cam.project(np.array([[0.0, 0.0, 1.0]]))
+    np.testing.assert_allclose(xy[0], [160, 120])
+    assert d[0] == pytest.approx(3.0)
+    # a point at the top edge of the field of view lands on the top row
+    top = np.array([[0.0, 0.0, 1.0 + 3.0 * np.tan(cam.yfov / 2)]])
+    np.testing.assert_allclose(cam.project(top)[0][0], [160, 240])
+    from vdad.camera import Dolly, Keyframes, Orbit
+
+    far = Dolly(cam, speed=2.0)(1.5)
+    assert np.linalg.norm(np.array(far.position) - far.target) == pytest.approx(6.0)
+    half = Orbit(cam, period=4.0)(2.0)
+    np.testing.assert_allclose(half.position, (-3.0, 0.0, 1.0), atol=1e-12)
+    k = Keyframes((0.0, 1.0), (cam, far))
+    np.testing.assert_allclose(k(0.5).position, (4.5, 0.0, 1.0))
+    np.testing.assert_allclose(k(9.0).position, far.position)
+    with pytest.raises(InputError, match="increasing"):
+        Keyframes((1.0, 0.0), (cam, far))
