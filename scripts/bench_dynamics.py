@@ -28,12 +28,14 @@ MARK = ("<!-- bench_dynamics:start -->", "<!-- bench_dynamics:end -->")
 
 def dog_forest(n_dogs=100):
     """``n_dogs`` free-floating trees of 16 bodies: torso, neck, head, tail and four
-    three-link legs, joined by revolute joints (a stand-in until the dog scene)."""
+    three-link legs, joined by revolute joints, each body a small capsule (a
+    stand-in until the dog scene), on a 10-wide grid 2 m apart."""
     bodies, joints = [], []
     inertia = np.diag([0.02, 0.02, 0.01])
+    geom = (vdad.Geom("capsule", (0.04, 0.05), vdad.Pose((0, 0, -0.05))),)
     for d in range(n_dogs):
         def add(name, parent, pos, axis=(0, 1, 0), d=d):
-            bodies.append(vdad.Body(f"d{d}_{name}", 0.5, (0, 0, -0.05), inertia))
+            bodies.append(vdad.Body(f"d{d}_{name}", 0.5, (0, 0, -0.05), inertia, geom))
             kind = "free" if parent is None else "revolute"
             parent = None if parent is None else f"d{d}_{parent}"
             joints.append(vdad.Joint(f"d{d}_{name}_j", parent, f"d{d}_{name}", kind, axis=axis,

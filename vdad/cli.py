@@ -43,11 +43,24 @@ def _nonnegative_int(text):
     return value
 
 
+def _resolution(text):
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be WIDTHxHEIGHT, e.g. 320x240, got {text}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"must be positive pixel counts, got {text}")
+    return w, h
+
+
 def build_parser():
     from .adaptive import METRICS, POLICIES
+    from .bounding import VOLUMES
     from .integrators import INTEGRATORS
     from .scenes import SCENES
     from .simulator import METHODS
+    from .visibility import ESTIMATES
 
     parser = argparse.ArgumentParser(
         prog="vdad", description="View-dependent dynamics of articulated bodies "
@@ -63,9 +76,12 @@ def build_parser():
                      help="number of time steps (default 500)")
     run.add_argument("--dt", type=_positive_float, default=1e-3, help="time step in s (1e-3)")
     run.add_argument("--method", choices=METHODS, default="dca",
-                     help="dynamics method: exact DCA or adaptive dynamics (default dca)")
+                     help="dynamics method: exact DCA, adaptive dynamics, or view-dependent "
+                     "adaptive dynamics with coverage from bounding volumes (view-bvh) or "
+                     "rendered occlusion counts (view-oq, needs EGL) (default dca)")
     adaptive = run.add_argument_group(
-        "adaptive dynamics", "with --method adaptive: give --threshold or --budget")
+        "adaptive dynamics", "with --method adaptive, view-bvh or view-oq: give --threshold "
+        "or --budget (view methods: in pixels times displacement per step)")
     adaptive.add_argument("--threshold", type=_nonnegative_float,
                           help="drop accelerations whose score (weighted displacement per "
                           "step) is below this; 0 reproduces the DCA")
@@ -81,6 +97,21 @@ def build_parser():
                           help="steps a joint keeps a new state (default 10)")
     adaptive.add_argument("--kappa", type=float, default=4.0,
                           help="hysteresis: rigidify below threshold/kappa (default 4)")
+    view = run.add_argument_group("view-dependent methods", "with --method view-bvh or view-oq")
+    view.add_argument("--volume", choices=VOLUMES, default="sphere",
+                      help="bounding volume of view-bvh (default sphere)")
+    view.add_argument("--estimate", choices=ESTIMATES, default="min",
+                      help="view-bvh coverage: min of the node's and its bodies' areas "
+                      "(eq. 7), the node's (eq. 5) or the bodies' (eq. 6) (default min)")
+    view.add_argument("--counting", choices=("queries", "merged"), default="queries",
+                      help="view-oq counts: occlusion queries (the paper's) or one merged "
+                      "id buffer (same counts, faster) (default queries)")
+    view.add_argument("--resolution", type=_resolution, default=(320, 240),
+                      help="counting resolution WIDTHxHEIGHT (default 320x240)")
+    view.add_argument("--camera-distance", type=_positive_float,
+                      help="viewer's distance in m (default: the whole scene in view)")
+    view.add_argument("--coverage-every", type=_positive_int, default=1,
+                      help="steps between coverage evaluations (default 1: every step)")
     run.add_argument("--integrator", choices=sorted(INTEGRATORS), default="semi-implicit",
                      help="time integrator (default semi-implicit Euler)")
     run.add_argument("--json", metavar="PATH", help="write the summary as JSON to PATH")
@@ -93,13 +124,20 @@ def run_scene(args):
 
     from .scenes import SCENES
 
-    scene = SCENES[args.scene](n_bodies=args.bodies, dt=args.dt)
+    scene = SCENES[args.scene](n_bodies=args.bodies, dt=args.dt,
+                               camera_distance=args.camera_distance,
+                               resolution=args.resolution)
     options = {}
-    if args.method == "adaptive":
+    if args.method != "dca":
         options = dict(threshold=args.threshold, budget=args.budget, policy=args.policy,
                        metric=args.metric, dwell=args.dwell, kappa=args.kappa)
     elif args.threshold is not None or args.budget is not None:
-        raise InputError("--threshold and --budget need --method adaptive")
+        raise InputError("--threshold and --budget need --method adaptive, view-bvh or view-oq")
+    if args.method == "view-bvh":
+        options.update(volume=args.volume, estimate=args.estimate,
+                       coverage_every=args.coverage_every)
+    elif args.method == "view-oq":
+        options.update(counting=args.counting, coverage_every=args.coverage_every)
     sim = scene.simulator(method=args.method, integrator=args.integrator, **options)
     chunk = max(1, args.steps // 100)
     start = time.perf_counter()

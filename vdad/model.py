@@ -55,18 +55,26 @@ class Geom:
     mesh: object = None
     rgba: tuple = (0.7, 0.7, 0.7, 1.0)
 
-    def to_trimesh(self):
-        """This geometry as a trimesh.Trimesh in the body frame (imports trimesh)."""
+    def to_trimesh(self, sections=None):
+        """This geometry as a trimesh.Trimesh in the body frame (imports trimesh).
+
+        sections: tessellation of round shapes, segments around the axis (None:
+        trimesh's fine defaults; e.g. 8 gives a 64-triangle capsule and an
+        80-triangle sphere, enough to count pixels at a few hundred pixels wide)."""
         import trimesh
 
         if self.kind == "mesh":
             mesh = self.mesh.copy()
         elif self.kind == "sphere":
-            mesh = trimesh.creation.icosphere(subdivisions=2, radius=self.size[0])
+            level = 2 if sections is None or sections > 8 else 1
+            mesh = trimesh.creation.icosphere(subdivisions=level, radius=self.size[0])
         elif self.kind == "capsule":
-            mesh = trimesh.creation.capsule(height=2 * self.size[1], radius=self.size[0])
+            count = {} if sections is None else {"count": [sections, max(2, sections // 2)]}
+            mesh = trimesh.creation.capsule(height=2 * self.size[1], radius=self.size[0],
+                                            **count)
         elif self.kind == "cylinder":
-            mesh = trimesh.creation.cylinder(radius=self.size[0], height=2 * self.size[1])
+            mesh = trimesh.creation.cylinder(radius=self.size[0], height=2 * self.size[1],
+                                             sections=sections or 32)
         elif self.kind == "box":
             mesh = trimesh.creation.box(extents=2 * np.asarray(self.size, dtype=float))
         else:

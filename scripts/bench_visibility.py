@@ -1,0 +1,166 @@
+"""Time the coverage N_M and reproduce the paper's Table 1 (issue 4).
+
+Visibility cost: one evaluation of ``N_M`` for every node of the assembly tree,
+for a 20- and a 300-link pendulum (``vdad.scenes.pendulum``, whole chain in view)
+and 100 sixteen-body "dogs" (1600 capsules on a 10 x 10 grid, seen from above at
+an angle), at 320 x 240: bounding volumes (sphere, OBB, AABB; eq. 7, the
+minimum of the node's and its bodies' areas, which places every body) and
+rendered counts (occlusion queries and the merged id buffer, over EGL; the raw
+per-body counts alone too). Table 1: the 20-body pendulum simulated with the
+full DCA, view-bvh (spheres, eq. 6 as the paper's table, and eq. 7) and view-oq,
+ms per step and mean active joints, with the coverage every step and once per
+displayed frame (every 16 steps of 1 ms: 60 Hz). Writes
+``docs/bench_visibility.json`` and the section between the markers of
+``docs/benchmarks.md``. Usage: ``python scripts/bench_visibility.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import numpy as np
+from bench_adaptive import ms_per_step
+from bench_dynamics import DOCS, dog_forest, fmt, median_us, write_section
+
+import vdad
+from vdad.bounding import VOLUMES
+from vdad.camera import Camera
+from vdad.render.context import renderer_name
+from vdad.render.counting import PixelCounter
+from vdad.scenes import pendulum
+from vdad.visibility import BoundingVolumes, RenderedCounts
+
+MARK = ("<!-- bench_visibility:start -->", "<!-- bench_visibility:end -->")
+TABLE1_THRESHOLD = 0.02            # pixels x rad per step
+PAPER_TABLE1 = {"dca": (0.218, 19), "view-bvh": (0.136, 10), "view-oq": (0.108, 8)}
+
+
+def setups():
+    """(name, model, tree, camera, q) for the three sizes."""
+    out = []
+    for n in (20, 300):
+        scene = pendulum(n_bodies=n)
+        sim = scene.simulator()
+        sim.step(200)                                  # a swinging, bent chain
+        out.append((f"pendulum {n}", scene.model, sim.tree, scene.camera, sim.q.copy()))
+    model = dog_forest(100)
+    sim = vdad.Simulator(model)
+    camera = Camera(position=(9.0, -12.0, 9.0), target=(9.0, 9.0, 0.8))
+    out.append(("100 dogs", model, sim.tree, camera, sim.q.copy()))
+    return out
+
+
+def coverage_row(name, model, tree, camera, q, budget):
+    """Median ms of one N_M evaluation per estimator, and of the raw counts."""
+    row = {"model": name, "bodies": model.nb}
+    for volume in VOLUMES:
+        cov = BoundingVolumes(tree, camera, volume, "min")
+        row[f"bvh_{volume}_ms"] = median_us(lambda c=cov: c(0.0, q), budget) / 1e3
+    R, p = vdad.Simulator(model, q).body_poses()
+    for method in ("queries", "merged"):
+        cov = RenderedCounts(tree, camera, method=method)
+        row[f"oq_{method}_ms"] = median_us(lambda c=cov: c(0.0, q), budget) / 1e3
+        counter = PixelCounter(model, None, camera.width, camera.height, method)
+        row[f"counts_{method}_ms"] = median_us(lambda c=counter: c.counts(camera, R, p),
+                                               budget) / 1e3
+    counts = counter.counts(camera, R, p)
+    row["visible_bodies"] = int(np.sum(counts > 0))
+    row["pixels"] = int(counts.sum())
+    return row
+
+
+def time_coverage(quick):
+    rows = []
+    for setup in setups():
+        rows.append(coverage_row(*setup, 0.3 if quick else 2.0))
+        print(rows[-1], flush=True)
+    return rows
+
+
+TABLE1 = [
+    ("full DCA", "dca", {}),
+    ("view-bvh, spheres, eq. 6", "view-bvh", {"volume": "sphere", "estimate": "bodies"}),
+    ("view-bvh, spheres, eq. 7", "view-bvh", {"volume": "sphere", "estimate": "min"}),
+    ("view-bvh, OBB, eq. 7", "view-bvh", {"volume": "obb", "estimate": "min"}),
+    ("view-oq, occlusion queries", "view-oq", {"counting": "queries"}),
+    ("view-oq, merged id buffer", "view-oq", {"counting": "merged"}),
+]
+
+
+def table1(quick):
+    scene = pendulum(n_bodies=20)
+    steps = 300 if quick else 2000
+    rows = []
+    for every in (1, 16):
+        for label, method, options in TABLE1:
+            if method == "dca" and every > 1:
+                continue
+            opts = dict(options)
+            if method != "dca":
+                opts.update(threshold=TABLE1_THRESHOLD, coverage_every=every)
+            sim = scene.simulator(method=method, **opts)
+            ms = ms_per_step(sim, steps // 4, 4)
+            active = (float(np.mean([s.active_joints for s in sim.history]))
+                      if sim.history else float(scene.model.nb))
+            vis = (1e3 * float(np.mean([s.times["visibility"] for s in sim.history]))
+                   if sim.history else 0.0)
+            rows.append({"method": label, "every": every, "ms_per_step": ms,
+                         "active_joints": active, "visibility_ms": vis})
+            print(rows[-1], flush=True)
+    return rows
+
+
+def write(result):
+    cov, t1 = result["coverage"], result["table1"]
+    lines = ["", f"Median ms per evaluation of `N_M` for every node; {result['gl_renderer']}, "
+             f"Python {result['python']}, numpy {result['numpy']}, {result['machine']}"
+             f"{' (quick run)' if result['quick'] else ''}. Counting at 320 x 240.", "",
+             "| scene | bodies | visible | BVH sphere | BVH OBB | BVH AABB | OQ queries | "
+             "OQ merged | counts only: queries | counts only: merged |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in cov:
+        lines.append(f"| {r['model']} | {r['bodies']} | {r['visible_bodies']} | "
+                     + " | ".join(fmt(r[k], 2) for k in (
+                         "bvh_sphere_ms", "bvh_obb_ms", "bvh_aabb_ms", "oq_queries_ms",
+                         "oq_merged_ms", "counts_queries_ms", "counts_merged_ms")) + " |")
+    lines += ["", f"Table 1 (20-body pendulum, 19 revolute joints + the root, dt = 1 ms, "
+              f"threshold {TABLE1_THRESHOLD} pixel rad per step, default camera: the whole "
+              f"chain in view at 320 x 240). Paper (C++, 2008): DCA 0.218 ms / 19 joints, "
+              f"BVH 0.136 / 10, OQ 0.108 / 8.", "",
+              "| method | N_M every | ms per step | of which N_M | active joints | "
+              "speed-up over DCA |", "|---|---|---|---|---|---|"]
+    dca = next(r["ms_per_step"] for r in t1 if r["method"] == "full DCA")
+    for r in t1:
+        every = "—" if r["method"] == "full DCA" else f"{r['every']} step(s)"
+        lines.append(f"| {r['method']} | {every} | {fmt(r['ms_per_step'], 3)} | "
+                     f"{fmt(r['visibility_ms'], 3)} | {fmt(r['active_joints'], 1)} | "
+                     f"{dca / r['ms_per_step']:.2f}x |")
+    write_section(MARK, lines)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="short runs (CI smoke test)")
+    args = parser.parse_args()
+    result = {"python": platform.python_version(), "numpy": np.__version__,
+              "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+              "quick": args.quick, "gl_renderer": None}
+    t0 = time.perf_counter()
+    result["coverage"] = time_coverage(args.quick)
+    result["gl_renderer"] = renderer_name()
+    result["table1"] = table1(args.quick)
+    result["paper_table1"] = PAPER_TABLE1
+    result["seconds"] = time.perf_counter() - t0
+    out = DOCS / ("bench_visibility_quick.json" if args.quick else "bench_visibility.json")
+    out.write_text(json.dumps(result, indent=1))
+    if not args.quick:
+        write(result)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
