@@ -126,3 +126,15 @@ def test_seeded_runs_repeat_exactly():
     b = pendulum(10, axes="alternate").simulator().step(100)
     np.testing.assert_array_equal(a.q, b.q)
     assert not np.allclose(a.q[1::2], 0.0)                  # the alternate chain swings in 3D
+
+
+def test_diverging_run_stops_with_the_joint():
+    """More than half a turn per step on a rotational dof: a SimulationError."""
+    from vdad.errors import SimulationError
+
+    scene = pendulum(n_bodies=3)
+    qd0 = np.array([0.0, 4000.0, 0.0])
+    sim = vdad.Simulator(scene.model, scene.q0, qd0, dt=1e-3)
+    with pytest.raises(SimulationError, match="step 1 .*joint 'joint1' turns 4 rad in one "
+                                              "step .*diverging; reduce the time step"):
+        sim.step()

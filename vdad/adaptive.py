@@ -101,13 +101,17 @@ def default_weights(model):
     inner = model.parent >= 0
     length = float(np.mean(np.linalg.norm(model.placement_p[inner], axis=1))) if inner.any() else 0
     length = length if length > 0 else 1.0
-    w = np.ones(model.nv)
+    return np.where(rotational_dofs(model), 1.0, 1.0 / length**2)
+
+
+def rotational_dofs(model):
+    """Mask (nv,) of the rotational degrees of freedom (hinges and balls)."""
+    mask = np.ones(model.nv, bool)
     for s in range(model.ns):
         kind = model.stage_kind[s]
         if kind in (J.SLIDE, J.TRANSLATION):
-            n = J.STAGE_NV[kind]
-            w[model.stage_v[s]:model.stage_v[s] + n] = 1.0 / length**2
-    return w
+            mask[model.stage_v[s]:model.stage_v[s] + J.STAGE_NV[kind]] = False
+    return mask
 
 
 def resolve_weights(model, weights, name="weights"):

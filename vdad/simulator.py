@@ -4,8 +4,10 @@ The simulator owns the state ``(t, q, qd)`` and the DCA work arrays; the model
 and the assembly tree stay immutable. Forces that depend on time or state come
 from two callables: ``controller(t, q, qd) -> tau`` (nv,) and
 ``external(t, q, qd) -> f_ext`` (nb, 6), as in :func:`vdad.forward_dynamics`.
-A step that produces a non-finite state stops with a :class:`SimulationError`
-naming the step and the first joint at fault.
+A step that produces a non-finite state, or turns a rotational degree of
+freedom by more than half a turn (|qd| dt > pi, which no integrator resolves: the
+run is diverging), stops with a :class:`SimulationError` naming the step and the
+first joint at fault.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import dca
+from .adaptive import rotational_dofs
 from .dynamics import check_vector, default_tree, forward_dynamics
 from .errors import InputError, SimulationError
 from .integrators import get_integrator, normalize_configuration
@@ -77,6 +80,7 @@ class Simulator:
         self.qd = np.zeros(model.nv) if qd0 is None else check_vector("qd0", qd0, model.nv).copy()
         self.t = 0.0
         self.step_count = 0
+        self._rotational = rotational_dofs(model)
         self.history = []
         self.adaptive = None
         self.camera, self.environment = camera, environment
@@ -130,6 +134,15 @@ class Simulator:
                                       f"values: {exc}") from exc
             if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
                 self._blow_up(q, qd)
+            fast = np.flatnonzero(self._rotational & (np.abs(qd) * self.dt > np.pi))
+            if len(fast):
+                joint = self.model.joint_names[self.model.dof_joint[fast[0]]]
+                raise SimulationError(
+                    f"step {self.step_count + 1} (t = {self.t + self.dt:.6g} s): joint "
+                    f"{joint!r} turns {abs(qd[fast[0]]) * self.dt:.3g} rad in one step (more "
+                    f"than half a turn): the simulation is diverging; reduce the time step"
+                    + (" or the adaptive threshold (dropped accelerations feed energy in)"
+                       if self.adaptive is not None else ""))
             self.q, self.qd = q, qd
             self.step_count += 1
             self.t = self.step_count * self.dt
