@@ -79,9 +79,34 @@ def test_run_budget_keeps_the_budget(tmp_path):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["run", "pendulum", "--threshold", "1e-3"], "need --method adaptive"),
+    (["run", "pendulum", "--threshold", "1e-3"], "need --method adaptive, view-bvh or view-oq"),
     (["run", "pendulum", "--method", "adaptive"], "exactly one of threshold= or budget="),
 ])
 def test_adaptive_option_errors(argv, message, capsys):
     assert main(argv + ["--no-progress", "--steps", "1"]) == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("method, extra", [
+    ("view-bvh", ["--volume", "obb", "--estimate", "min"]),
+    ("view-oq", ["--counting", "merged", "--resolution", "160x120"]),
+])
+def test_run_view_methods(method, extra, tmp_path):
+    """Near, most joints move; 200 m away, (almost) everything is rigid."""
+    means = []
+    for distance in ("2", "200"):
+        out = tmp_path / f"{method}{distance}.json"
+        assert main(["run", "pendulum", "--bodies", "12", "--steps", "150", "--method", method,
+                     "--threshold", "1e-3", "--camera-distance", distance, *extra,
+                     "--json", str(out), "--no-progress"]) == 0
+        data = json.loads(out.read_text())
+        assert data["method"] == method and data["ms_per_phase_mean"]["visibility"] > 0
+        assert data["params"]["camera_distance"] == float(distance)
+        means.append(data["active_joints_mean"])
+    assert means[0] > 4 and means[1] < 1, means
+
+
+def test_bad_resolution(capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "pendulum", "--method", "view-bvh", "--resolution", "0x5"])
+    assert "--resolution: must be positive pixel counts" in capsys.readouterr().err
