@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, VdadError
 from .spatial import mv
 
 VOLUMES = ("sphere", "obb", "aabb")
@@ -82,7 +82,12 @@ _CACHE = {}
 def _geometry_volumes(geoms):
     """(sphere centre, radius, OBB axes, OBB centre, OBB half, AABB centre, AABB
     half) of a tuple of geoms in the body frame (None without geometry)."""
-    import trimesh
+    try:
+        import scipy  # noqa: F401  (trimesh's bounding volumes need it)
+        import trimesh
+    except ImportError as exc:
+        raise VdadError(f"bounding volumes need trimesh and scipy: pip install "
+                        f"'vdad[geometry]' ({exc})") from exc
 
     try:
         return _CACHE[geoms]
