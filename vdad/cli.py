@@ -15,32 +15,22 @@ import numpy as np
 from .errors import InputError, VdadError
 
 
-def _positive_int(text):
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
+def _number(cast, low, strict, what):
+    """An argparse type: ``cast(text)``, finite and ``> low`` (``strict``) or ``>= low``."""
+    def parse(text):
+        value = cast(text)
+        if not np.isfinite(value) or value < low or (strict and value == low):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text}")
+        return value
+
+    parse.__name__ = "integer" if cast is int else "number"     # argparse's "invalid ..."
+    return parse
 
 
-def _positive_float(text):
-    value = float(text)
-    if not np.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
-
-
-def _nonnegative_float(text):
-    value = float(text)
-    if not np.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
-    return value
-
-
-def _nonnegative_int(text):
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
-    return value
+_positive_int = _number(int, 1, False, "a positive integer")
+_positive_float = _number(float, 0.0, True, "a positive number")
+_nonnegative_float = _number(float, 0.0, False, "a number >= 0")
+_nonnegative_int = _number(int, 0, False, "an integer >= 0")
 
 
 def _resolution(text):

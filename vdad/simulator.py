@@ -56,8 +56,8 @@ class Simulator:
             raise InputError(f"unknown method {method!r}; choose one of {METHODS}")
         if adaptive_options and method == "dca":
             raise InputError(f"options {sorted(adaptive_options)} need method='adaptive'")
-        view = {k: adaptive_options.pop(k) for k in ("volume", "estimate", "resolution",
-                                                     "counting") if k in adaptive_options}
+        view = {k: adaptive_options.pop(k) for k in set().union(*VIEW_OPTIONS.values())
+                if k in adaptive_options}
         wrong = sorted(set(view) - set(VIEW_OPTIONS.get(method, ())))
         if wrong:
             raise InputError(f"options {wrong} do not apply to method {method!r}")

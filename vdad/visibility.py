@@ -155,7 +155,8 @@ class RenderedCounts(_Coverage):
         super().__init__(tree, camera, resolution)
         from .render.counting import PixelCounter
 
-        w, h = self.resolution or (camera_at(camera, 0.0).width, camera_at(camera, 0.0).height)
+        start = camera_at(camera, 0.0)
+        w, h = self.resolution or (start.width, start.height)
         self.counter = PixelCounter(self.model, environment, w, h, method)
         self.resolution = (w, h)
 
