@@ -6,9 +6,9 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
-from ..model import Body, Geom, Joint, Model, Pose
+from ..model import Joint, Model, Pose
 from ..spatial import quat_exp
-from .base import Scene
+from .base import Scene, rod
 
 
 def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0,
@@ -46,16 +46,13 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
                     width=resolution[0], height=resolution[1], znear=0.01 * L,
                     zfar=10 * (D + n * L))
     r = L / 10 if radius is None else float(radius)
-    Ixx = m * (3 * r**2 + L**2) / 12
-    inertia = np.diag([Ixx, Ixx, m * r**2 / 2])
-    geom = Geom("capsule", (r, L / 2 - r if L > 2 * r else L / 2),
-                Pose((0.0, 0.0, -L / 2)))
+
     def axis_of(i):
         return np.array([1.0, 0.0, 0.0] if axes == "alternate" and i % 2 else [0.0, 1.0, 0.0])
 
     bodies, joints = [], []
     for i in range(n):
-        bodies.append(Body(f"link{i}", m, (0.0, 0.0, -L / 2), inertia, (geom,)))
+        bodies.append(rod(f"link{i}", m, (0.0, 0.0, 0.0), (0.0, 0.0, -L), r))
         joints.append(Joint(f"joint{i}", None if i == 0 else f"link{i - 1}", f"link{i}", joint,
                             axis=tuple(axis_of(i)), damping=damping,
                             placement=Pose((0.0, 0.0, 0.0 if i == 0 else -L))))
