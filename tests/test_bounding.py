@@ -115,3 +115,23 @@ def test_merge_commutes_with_rigid_motions(kind):
 def test_unknown_volume():
     with pytest.raises(InputError, match="unknown bounding volume 'ball'"):
         body_volumes(_model(), "ball")
+
+
+@pytest.mark.parametrize("kind,size", [("sphere", (0.3,)), ("capsule", (0.1, 0.4)),
+                                       ("cylinder", (0.2, 0.3)), ("box", (0.1, 0.2, 0.3))])
+def test_primitive_volumes_are_exact(kind, size):
+    """One primitive is bounded in closed form; the trimesh path (two copies of
+    it) of its fine tessellation agrees within the tessellation's error and never
+    exceeds it."""
+    from vdad.bounding import _geometry_volumes
+    from vdad.spatial import quat_exp
+
+    R = quat_exp(np.array([0.3, -0.5, 0.7]))
+    g = vdad.Geom(kind, size, vdad.Pose((0.1, -0.2, 0.3), R))
+    exact, mesh = _geometry_volumes((g,)), _geometry_volumes((g, g))
+    np.testing.assert_allclose(exact[0], mesh[0], atol=0.02 * exact[1])
+    assert mesh[1] <= exact[1] * (1 + 1e-9) and mesh[1] > 0.97 * exact[1]
+    np.testing.assert_allclose(np.sort(exact[4]), np.sort(mesh[4]), rtol=0.02)
+    np.testing.assert_allclose(exact[5], mesh[5], atol=0.02 * np.max(exact[6]))
+    np.testing.assert_allclose(exact[6], mesh[6], rtol=0.02)
+    assert np.all(mesh[6] <= exact[6] * (1 + 1e-9))

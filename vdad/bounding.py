@@ -8,10 +8,11 @@ Three types, chosen by name (:data:`VOLUMES`):
   placed boxes at every step (paper: "axis-aligned bounding volumes ... need to
   update all of them").
 
-Each body's volume is computed once from its geometry with trimesh and stored in
-the body frame (:func:`body_volumes`; for ``"aabb"`` the body-frame bounds, placed
-in the world as the world-axis box that encloses them). A node's volume encloses
-its children's (:func:`merge`): the enclosing sphere of two spheres, the box with
+Each body's volume is computed once from its geometry (exactly for one sphere,
+capsule, cylinder or box; with trimesh otherwise) and stored in the body frame
+(:func:`body_volumes`; for ``"aabb"`` the body-frame bounds, placed in the world
+as the world-axis box that encloses them). A node's volume encloses its
+children's (:func:`merge`): the enclosing sphere of two spheres, the box with
 ``A``'s axes that holds both boxes' corners, the union of two world boxes. The
 merges commute with rigid motions for spheres and oriented boxes, so a rigid
 node's volume can be kept in its group frame and only placed at run time
@@ -79,9 +80,35 @@ def check_volume(kind):
 _CACHE = {}
 
 
+def _primitive_volumes(g):
+    """The volumes of one sphere, capsule, cylinder or box ``g``, exact for the
+    true shape (None for a mesh)."""
+    R, p = g.pose.matrix()
+    size = np.asarray(g.size, float)
+    if g.kind == "sphere":
+        r = size[0]
+        return p, r, R, p, np.full(3, r), p, np.full(3, r)
+    if g.kind in ("capsule", "cylinder"):
+        r, hl = size
+        axial = np.abs(R[:, 2])
+        if g.kind == "capsule":
+            return (p, hl + r, R, p, np.array([r, r, hl + r]), p, axial * hl + r)
+        across = r * np.sqrt(np.maximum(1 - axial**2, 0.0))
+        return (p, float(np.hypot(r, hl)), R, p, np.array([r, r, hl]), p, axial * hl + across)
+    if g.kind == "box":
+        return p, float(np.linalg.norm(size)), R, p, size, p, np.abs(R) @ size
+    return None
+
+
 def _geometry_volumes(geoms):
     """(sphere centre, radius, OBB axes, OBB centre, OBB half, AABB centre, AABB
-    half) of a tuple of geoms in the body frame (None without geometry)."""
+    half) of a tuple of geoms in the body frame (None without geometry). One
+    primitive is bounded exactly; several, or a mesh, through trimesh (minimum
+    bounding sphere, minimum-volume oriented box, bounds)."""
+    if not geoms:
+        return None
+    if len(geoms) == 1 and geoms[0].kind != "mesh":
+        return _primitive_volumes(geoms[0])
     try:
         import scipy  # noqa: F401  (trimesh's bounding volumes need it)
         import trimesh
@@ -89,30 +116,23 @@ def _geometry_volumes(geoms):
         raise VdadError(f"bounding volumes need trimesh and scipy: pip install "
                         f"'vdad[geometry]' ({exc})") from exc
 
-    try:
-        return _CACHE[geoms]
-    except (KeyError, TypeError):
-        pass
-    if not geoms:
-        result = None
-    else:
+    key = tuple((g.kind, g.size, tuple(np.concatenate([a.ravel() for a in g.pose.matrix()])),
+                 id(g.mesh)) for g in geoms)
+    if key not in _CACHE:
         mesh = trimesh.util.concatenate([g.to_trimesh() for g in geoms])
         sphere = mesh.bounding_sphere.primitive
         obb = mesh.bounding_box_oriented.primitive
         lo, hi = mesh.bounds
-        result = (np.array(sphere.center, float), float(sphere.radius),
-                  np.array(obb.transform[:3, :3], float), np.array(obb.transform[:3, 3], float),
-                  0.5 * np.array(obb.extents, float), (lo + hi) / 2, (hi - lo) / 2)
-    try:
-        _CACHE[geoms] = result
-    except TypeError:
-        pass
-    return result
+        _CACHE[key] = (np.array(sphere.center, float), float(sphere.radius),
+                       np.array(obb.transform[:3, :3], float),
+                       np.array(obb.transform[:3, 3], float), 0.5 * np.array(obb.extents, float),
+                       (lo + hi) / 2, (hi - lo) / 2)
+    return _CACHE[key]
 
 
 def body_volumes(model, kind):
     """Per-body volumes (nb) of type ``kind`` in each body's frame, from its geoms
-    (trimesh: minimum bounding sphere, minimum-volume oriented box, bounds)."""
+    (:func:`_geometry_volumes`)."""
     check_volume(kind)
     v = Volumes.empty(kind, model.nb)
     for i, body in enumerate(model.bodies):

@@ -1,6 +1,6 @@
-"""The ``vdad`` command line: ``vdad run SCENE ...``.
+"""The ``vdad`` command line: ``vdad run SCENE ...`` and ``vdad render SCENE ...``.
 
-Every command has ``--help``; results go to plain JSON files.
+Every command has ``--help``; results go to plain files (JSON, PNG, GIF, MP4).
 """
 
 from __future__ import annotations
@@ -44,32 +44,42 @@ def _resolution(text):
     return w, h
 
 
-def build_parser():
+def _scene_options(parser):
+    """Options that pick and size a scene (shared by ``run`` and ``render``)."""
+    from .scenes import SCENES
+
+    parser.add_argument("scene", choices=sorted(SCENES), help="scene to simulate")
+    scene = parser.add_argument_group("scene", "options a scene does not take are an error; "
+                                      "the defaults are the scene's own")
+    scene.add_argument("--bodies", type=_positive_int,
+                       help="pendulum: number of links (default 20)")
+    scene.add_argument("--dogs", type=_positive_int,
+                       help="hanging_dogs: number of dogs (default 100)")
+    scene.add_argument("--seed", type=_nonnegative_int,
+                       help="random seed (hanging_dogs: twists and torques; falling_character: "
+                       "initial joint angles)")
+    scene.add_argument("--dt", type=_positive_float, help="time step in s (default: the scene's)")
+    scene.add_argument("--camera-distance", type=_positive_float,
+                       help="viewer's distance in m (default: the scene's)")
+    scene.add_argument("--resolution", type=_resolution,
+                       help="camera and counting resolution WIDTHxHEIGHT (default 320x240)")
+
+
+def _method_options(parser):
+    """Dynamics method options (shared by ``run`` and ``render``)."""
     from .adaptive import METRICS, POLICIES
     from .bounding import VOLUMES
     from .integrators import INTEGRATORS
-    from .scenes import SCENES
     from .simulator import METHODS
     from .visibility import ESTIMATES
 
-    parser = argparse.ArgumentParser(
-        prog="vdad", description="View-dependent dynamics of articulated bodies "
-        "(Kim, Redon and Kim 2008).")
-    sub = parser.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="simulate a scene and report timing",
-                         description="Simulate one of the paper's scenes and write a JSON "
-                         "summary (timing, final state).")
-    run.add_argument("scene", choices=sorted(SCENES), help="scene to simulate")
-    run.add_argument("--bodies", type=_positive_int, default=20,
-                     help="number of bodies (pendulum links; default 20)")
-    run.add_argument("--steps", type=_positive_int, default=500,
-                     help="number of time steps (default 500)")
-    run.add_argument("--dt", type=_positive_float, default=1e-3, help="time step in s (1e-3)")
-    run.add_argument("--method", choices=METHODS, default="dca",
-                     help="dynamics method: exact DCA, adaptive dynamics, or view-dependent "
-                     "adaptive dynamics with coverage from bounding volumes (view-bvh) or "
-                     "rendered occlusion counts (view-oq, needs EGL) (default dca)")
-    adaptive = run.add_argument_group(
+    parser.add_argument("--method", choices=METHODS, default="dca",
+                        help="dynamics method: exact DCA, adaptive dynamics, or view-dependent "
+                        "adaptive dynamics with coverage from bounding volumes (view-bvh) or "
+                        "rendered occlusion counts (view-oq, needs EGL) (default dca)")
+    parser.add_argument("--integrator", choices=sorted(INTEGRATORS), default="semi-implicit",
+                        help="time integrator (default semi-implicit Euler)")
+    adaptive = parser.add_argument_group(
         "adaptive dynamics", "with --method adaptive, view-bvh or view-oq: give --threshold "
         "or --budget (view methods: in pixels times displacement per step)")
     adaptive.add_argument("--threshold", type=_nonnegative_float,
@@ -87,7 +97,8 @@ def build_parser():
                           help="steps a joint keeps a new state (default 10)")
     adaptive.add_argument("--kappa", type=float, default=4.0,
                           help="hysteresis: rigidify below threshold/kappa (default 4)")
-    view = run.add_argument_group("view-dependent methods", "with --method view-bvh or view-oq")
+    view = parser.add_argument_group("view-dependent methods",
+                                     "with --method view-bvh or view-oq")
     view.add_argument("--volume", choices=VOLUMES, default="sphere",
                       help="bounding volume of view-bvh (default sphere)")
     view.add_argument("--estimate", choices=ESTIMATES, default="min",
@@ -96,27 +107,95 @@ def build_parser():
     view.add_argument("--counting", choices=("queries", "merged"), default="queries",
                       help="view-oq counts: occlusion queries (the paper's) or one merged "
                       "id buffer (same counts, faster) (default queries)")
-    view.add_argument("--resolution", type=_resolution, default=(320, 240),
-                      help="counting resolution WIDTHxHEIGHT (default 320x240)")
-    view.add_argument("--camera-distance", type=_positive_float,
-                      help="viewer's distance in m (default: the whole scene in view)")
     view.add_argument("--coverage-every", type=_positive_int, default=1,
                       help="steps between coverage evaluations (default 1: every step)")
-    run.add_argument("--integrator", choices=sorted(INTEGRATORS), default="semi-implicit",
-                     help="time integrator (default semi-implicit Euler)")
+
+
+def build_parser():
+    from .render.pictures import COLORS, SUFFIXES
+
+    parser = argparse.ArgumentParser(
+        prog="vdad", description="View-dependent dynamics of articulated bodies "
+        "(Kim, Redon and Kim 2008).")
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="simulate a scene and report timing",
+                         description="Simulate one of the paper's scenes and write a JSON "
+                         "summary (timing, active joints, final state).")
+    _scene_options(run)
+    run.add_argument("--steps", type=_positive_int, default=500,
+                     help="number of time steps (default 500)")
+    _method_options(run)
     run.add_argument("--json", metavar="PATH", help="write the summary as JSON to PATH")
     run.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+    render = sub.add_parser(
+        "render", help="simulate a scene and write pictures or a video",
+        description="Simulate one of the paper's scenes and render it with pyrender over EGL "
+        "(Kim 2008 Figures 1, 2 and 7): PNG frames, a GIF, an MP4, or a motion strip; bodies "
+        "coloured by rigid group and active joints marked if asked.")
+    _scene_options(render)
+    render.add_argument("--out", required=True, metavar="FILE",
+                        help=f"output file, by suffix ({', '.join(SUFFIXES)}); several PNG "
+                        f"frames are numbered FILE_0000.png, ...")
+    render.add_argument("--steps", type=_positive_int, default=1000,
+                        help="number of time steps (default 1000)")
+    render.add_argument("--every", type=_positive_int,
+                        help="steps between frames (default: about 30 frames per simulated s)")
+    render.add_argument("--size", type=_resolution, default=(640, 480),
+                        help="picture size WIDTHxHEIGHT (default 640x480)")
+    render.add_argument("--color", choices=COLORS, default="group",
+                        help="one colour per rigid group (as the paper's figures), per body, "
+                        "or the geometry's own (default group)")
+    render.add_argument("--show-active", action="store_true",
+                        help="mark the active joints with red spheres")
+    render.add_argument("--strip", type=_positive_int, metavar="N",
+                        help="write one PNG motion strip of N frames spread over the run "
+                        "(Figure 7) instead of every frame")
+    render.add_argument("--distances", type=_distances, metavar="D1,D2,...",
+                        help="simulate once per viewer distance and show the runs one above "
+                        "the other, all seen from the first distance (a strip, or a video "
+                        "of the rows)")
+    render.add_argument("--fps", type=_positive_float, default=30.0,
+                        help="frames per second of a GIF or MP4 (default 30)")
+    _method_options(render)
+    render.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return parser
 
 
-def run_scene(args):
-    from tqdm import tqdm
+def _distances(text):
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be distances in m separated by commas, e.g. "
+                                         f"3,12, got {text}") from None
+    if not values or not all(np.isfinite(v) and v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"distances must be positive, got {text}")
+    return values
+
+
+def make_scene(args, **override):
+    """The scene ``args.scene`` built from the scene options that were given
+    (``override`` wins); an option the scene does not take is an InputError."""
+    import inspect
 
     from .scenes import SCENES
 
-    scene = SCENES[args.scene](n_bodies=args.bodies, dt=args.dt,
-                               camera_distance=args.camera_distance,
-                               resolution=args.resolution)
+    build = SCENES[args.scene]
+    given = {"n_bodies": args.bodies, "n_dogs": args.dogs, "seed": args.seed, "dt": args.dt,
+             "camera_distance": args.camera_distance, "resolution": args.resolution}
+    given = {k: v for k, v in given.items() if v is not None}
+    given.update(override)
+    accepted = inspect.signature(build).parameters
+    wrong = [k for k in given if k not in accepted]
+    if wrong:
+        flags = {"n_bodies": "--bodies", "n_dogs": "--dogs"}
+        names = ", ".join(flags.get(k, "--" + k.replace("_", "-")) for k in wrong)
+        raise InputError(f"scene {args.scene!r} does not take {names}")
+    return build(**given)
+
+
+def make_simulator(scene, args):
+    """The simulator of ``scene`` with the method options of ``args``."""
     options = {}
     if args.method != "dca":
         options = dict(threshold=args.threshold, budget=args.budget, policy=args.policy,
@@ -128,7 +207,14 @@ def run_scene(args):
                        coverage_every=args.coverage_every)
     elif args.method == "view-oq":
         options.update(counting=args.counting, coverage_every=args.coverage_every)
-    sim = scene.simulator(method=args.method, integrator=args.integrator, **options)
+    return scene.simulator(method=args.method, integrator=args.integrator, **options), options
+
+
+def run_scene(args):
+    from tqdm import tqdm
+
+    scene = make_scene(args)
+    sim, options = make_simulator(scene, args)
     chunk = max(1, args.steps // 100)
     start = time.perf_counter()
     with tqdm(total=args.steps, desc=f"{args.scene} ({scene.model.nb} bodies)", unit="step",
@@ -143,7 +229,7 @@ def run_scene(args):
     summary = {
         "scene": scene.name, "method": args.method, "integrator": args.integrator,
         "bodies": scene.model.nb, "joints": scene.model.nb, "dofs": scene.model.nv,
-        "steps": args.steps, "dt": args.dt, "simulated_time": sim.t,
+        "steps": args.steps, "dt": sim.dt, "simulated_time": sim.t,
         "ms_per_step": 1e3 * elapsed / args.steps, "final_q": sim.q.tolist(),
         "final_qd": sim.qd.tolist(), "params": scene.params,
     }
@@ -155,7 +241,7 @@ def run_scene(args):
             json.dump(summary, fh, indent=1)
     active = (f", {summary['active_joints_mean']:.1f} of {scene.model.nb} joints active on "
               f"average" if sim.history else "")
-    print(f"{scene.description}: {args.steps} steps of {args.dt} s with {args.method} "
+    print(f"{scene.description}: {args.steps} steps of {sim.dt} s with {args.method} "
           f"({args.integrator}), {summary['ms_per_step']:.3f} ms per step{active}"
           + (f"; summary in {args.json}" if args.json else ""))
     return 0
@@ -174,12 +260,52 @@ def adaptive_summary(history):
             "ms_per_phase_mean": phases}
 
 
+def render_scene(args):
+    from .render.pictures import SceneRenderer, motion_strip, record, write
+
+    distances = args.distances or [None]
+    runs = []
+    for d in distances:
+        scene = make_scene(args, **({} if d is None else {"camera_distance": d}))
+        sim, _ = make_simulator(scene, args)
+        runs.append((d, scene, sim))
+    first = runs[0][1]
+    every = args.every or max(1, round(1 / (30 * runs[0][2].dt)))
+    if args.strip:
+        every = max(1, args.steps // max(args.strip - 1, 1))
+    w, h = args.size
+    rows = []
+    with SceneRenderer(first.model, first.environment, w, h) as renderer:
+        for d, _, sim in runs:
+            label = f"{first.name} ({args.method}" + (f", viewer at {d:g} m)" if d else ")")
+            print(f"rendering {label}", file=sys.stderr)
+            frames = record(sim, args.steps, every, renderer=renderer, camera=first.camera,
+                            color=args.color, show_active=args.show_active,
+                            progress=not args.no_progress)
+            rows.append(frames[:args.strip] if args.strip else frames)
+    if args.strip:
+        images = [f for row in rows for f in row]
+        labels = [f"t = {f.t:.2f} s, {f.n_groups} groups" + (f", {d:g} m" if d else "")
+                  for (d, _, _), row in zip(runs, rows, strict=True) for f in row]
+        out = write(motion_strip(images, columns=len(rows[0]), labels=labels), args.out)
+    elif len(rows) > 1:
+        n = min(len(r) for r in rows)
+        out = write([np.concatenate([r[i].image for r in rows], axis=0) for i in range(n)],
+                    args.out, fps=args.fps)
+    else:
+        out = write(rows[0], args.out, fps=args.fps)
+    print(f"wrote {len(out)} file(s): {out[0]}" + (f" ... {out[-1]}" if len(out) > 1 else ""))
+    return 0
+
+
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         if args.command == "run":
             return run_scene(args)
+        if args.command == "render":
+            return render_scene(args)
     except VdadError as exc:
         print(f"vdad: error: {exc}", file=sys.stderr)
         return 2

@@ -99,7 +99,7 @@ def humanoid(scale=1.0, joint_damping=10.0):
 
 
 def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0,
-                      joint_damping=40.0, floor_frequency=150.0, friction=0.8,
+                      joint_damping=40.0, floor_frequency=250.0, friction=0.8,
                       camera_distance=3.0,
                       camera_speed=3.0, resolution=(320, 240)):
     """A character of 29 bodies falls onto a floor under gravity while the viewer

@@ -1,0 +1,184 @@
+"""The paper's scenes end to end (Kim 2008 §6.1): every scene with every method,
+seeded repeatability, and the behaviour each scene must show."""
+
+import numpy as np
+import pytest
+
+from vdad.errors import InputError
+from vdad.quantities import kinetic_energy
+from vdad.scenes import SCENES, dog_puppet, falling_character, hanging_dogs, pendulum
+from vdad.scenes.dogs import LEGS, PUPPET_PHASES, StickPath
+
+SMALL = {"pendulum": lambda: pendulum(n_bodies=20),
+         "dog_puppet": dog_puppet,
+         "hanging_dogs": lambda: hanging_dogs(n_dogs=4, columns=2),
+         "falling_character": falling_character}
+THRESHOLD = {"adaptive": 1e-6, "view-bvh": 0.01, "view-oq": 0.01}
+
+
+def options(method):
+    extra = {"view-oq": {"counting": "merged"}}.get(method, {})
+    return {} if method == "dca" else {"threshold": THRESHOLD[method], **extra}
+
+
+def test_every_scene_is_registered():
+    assert set(SMALL) == set(SCENES)
+
+
+@pytest.mark.parametrize("method", ["dca", "adaptive", "view-bvh", "view-oq"])
+@pytest.mark.parametrize("name", sorted(SMALL))
+def test_scene_runs_with_every_method(name, method):
+    scene = SMALL[name]()
+    model = scene.model
+    assert scene.q0.shape == (model.nq,) and scene.qd0.shape == (model.nv,)
+    assert np.all(np.isfinite(scene.q0)) and scene.camera is not None
+    assert scene.description and scene.params
+    sim = scene.simulator(method=method, **options(method))
+    sim.step(200)
+    assert np.all(np.isfinite(sim.q)) and np.all(np.isfinite(sim.qd))
+    assert sim.t == pytest.approx(200 * scene.dt)
+    moved = np.abs(sim.q - scene.q0).max()
+    assert moved > 1e-4                                  # the forces act
+    if method != "dca":
+        active = [s.active_joints for s in sim.history]
+        assert len(active) == 200 and 0 < np.mean(active) <= model.nb
+
+
+def test_the_paper_sizes():
+    assert pendulum(n_bodies=300).model.nb == 300
+    assert dog_puppet().model.nb == 16
+    dogs = hanging_dogs()
+    assert dogs.model.nb == 1600
+    assert sum(model_nv == 6 for model_nv in dogs.model.nv_joint) == 100     # one free root each
+    assert falling_character().model.nb == 29
+
+
+def test_hundred_dogs_step():
+    sim = hanging_dogs().simulator(method="adaptive", threshold=1e-6)
+    sim.step(3)
+    assert np.all(np.isfinite(sim.q))
+
+
+@pytest.mark.parametrize("build", [lambda seed: hanging_dogs(n_dogs=4, columns=2, seed=seed),
+                                   lambda seed: falling_character(seed=seed)])
+def test_seeded_runs_repeat_exactly(build):
+    def run(seed):
+        sim = build(seed).simulator(method="adaptive", threshold=1e-6)
+        sim.step(300)
+        return sim.q
+
+    a, b, c = run(3), run(3), run(4)
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a - c).max() > 1e-6
+
+
+def test_scene_arguments_are_checked():
+    with pytest.raises(InputError, match="n_dogs"):
+        hanging_dogs(n_dogs=0)
+    with pytest.raises(InputError, match="floor_frequency"):
+        falling_character(dt=0.01)
+    with pytest.raises(InputError, match="stick"):
+        dog_puppet(stick=3)
+    with pytest.raises(InputError, match="increasing"):
+        StickPath((0.0, 0.0), ((0, 0, 1), (1, 0, 1)))
+    with pytest.raises(InputError, match="drag"):
+        dog_puppet(drag=-1.0)
+
+
+# --- the falling character comes to rest -------------------------------------------
+
+@pytest.fixture(scope="module")
+def fallen():
+    scene = falling_character()
+    sim = scene.simulator()
+    contact = scene.forces.elements[0]
+    ke, low, pelvis = [], [], []
+    while sim.t < 3.0 - 1e-9:
+        sim.step(20)
+        x = contact.points(scene.forces.states_of(contact, sim.q, sim.qd))[0]
+        ke.append(kinetic_energy(scene.model, sim.q, sim.qd))
+        low.append(x[:, 2].min())
+        pelvis.append(sim.q[:3].copy())
+    return np.array(ke), np.array(low), np.array(pelvis), scene
+
+
+def test_character_falls_and_comes_to_rest(fallen):
+    ke, low, pelvis, scene = fallen
+    start = scene.q0[2]
+    assert pelvis[:, 2].min() < 0.3 * start              # it fell
+    last = slice(-25, None)                               # the last 0.5 s
+    assert ke[last].max() < 1e-3 * ke.max()               # kinetic energy decayed
+    assert ke[-50:-25].mean() > ke[last].mean() * 0.2 or ke[last].mean() < 1e-2
+
+
+def test_character_does_not_sink_or_jitter(fallen):
+    ke, low, pelvis, scene = fallen
+    g = np.linalg.norm(scene.model.gravity)
+    w = scene.forces.elements[0].frequency
+    last = slice(-25, None)                               # the last 0.5 s
+    # at rest a body alone on its points sinks g / w^2 (0.16 mm); bodies carry
+    # their neighbours' weight too: at most 5 mm, and 5 cm at the impact
+    assert low[last].min() > -0.005 and g / w**2 < 0.005
+    assert low.min() > -0.05
+    assert np.ptp(low[last]) < 1e-3                       # no sinking, no bouncing
+    assert np.linalg.norm(np.ptp(pelvis[last], axis=0)) < 2e-3
+
+
+# --- the hanging dogs stay on their springs and keep moving ------------------------
+
+def test_dogs_stay_on_springs_and_keep_moving():
+    scene = hanging_dogs(n_dogs=4, columns=2)
+    springs, torques = scene.forces.elements
+    sim = scene.simulator(method="adaptive", threshold=1e-6)
+    rest = springs.rest_length
+    lengths, ke = [], []
+    while sim.t < 2.0 - 1e-9:
+        sim.step(25)
+        states = scene.forces.states_of(springs, sim.q, sim.qd)
+        lengths.append(springs.lengths(sim.t, states))
+        ke.append(kinetic_energy(scene.model, sim.q, sim.qd))
+    lengths, ke = np.array(lengths), np.array(ke)
+    dog_mass = scene.model.mass.sum() / 4
+    stretch = dog_mass * 9.81 / (2 * springs.stiffness[0])      # equilibrium, two springs
+    assert lengths.min() > rest[0] and lengths.max() < rest[0] + 3 * stretch + 0.1
+    assert ke[-20:].mean() > 0.2 * ke[:20].mean()                # still moving after 2 s
+    first = torques.pulses(0)[1].min()                             # the first pulse
+    assert first < 1.0
+    runs = [hanging_dogs(n_dogs=4, columns=2, torque=tau).simulator() for tau in (0.3, 0.0)]
+    for run in runs:
+        run.step(int((first + 0.1) / run.dt))
+    assert np.abs(runs[0].q - runs[1].q).max() > 1e-4              # the torques act
+
+
+# --- the puppet's hidden legs --------------------------------------------------------
+
+def leg_activity(method):
+    scene = dog_puppet()
+    model = scene.model
+    legs = [model.joint_index(f"{leg}_{j}") for leg in LEGS for j in ("knee", "ankle")]
+    sim = scene.simulator(method=method, threshold=0.03,
+                          **({"counting": "merged"} if method == "view-oq" else {}))
+    t, active = [], []
+    while sim.t < 7.4 - 1e-9:
+        sim.step(10)
+        t.append(sim.t)
+        active.append(np.isin(legs, sim.adaptive.js.joints).sum())
+    t, active = np.array(t), np.array(active)
+    return {name: active[(t >= a) & (t <= b)].mean() for name, (a, b) in PUPPET_PHASES.items()}
+
+
+def test_puppet_legs_hidden_by_the_wall_are_rigid_with_view_oq():
+    mean = leg_activity("view-oq")                         # 8 knees and ankles
+    for name in ("open", "open_again", "back_in_view"):
+        assert mean[name] >= 6, (name, mean)
+    for name in ("behind_wall", "below_view"):
+        assert mean[name] <= 1, (name, mean)
+
+
+def test_puppet_legs_below_the_view_are_rigid_with_view_bvh():
+    mean = leg_activity("view-bvh")
+    for name in ("open", "open_again", "back_in_view"):
+        assert mean[name] >= 6, (name, mean)
+    assert mean["below_view"] <= 4 < mean["open"]
+    # bounding volumes model no occlusion: the wall hides nothing from them
+    assert mean["behind_wall"] >= 6
