@@ -22,7 +22,7 @@ def test_run_pendulum_writes_json(tmp_path, capsys):
     assert "ms per step" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"]])
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["render", "--help"]])
 def test_help(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         main(argv)
@@ -110,3 +110,63 @@ def test_bad_resolution(capsys):
     with pytest.raises(SystemExit):
         main(["run", "pendulum", "--method", "view-bvh", "--resolution", "0x5"])
     assert "--resolution: must be positive pixel counts" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [
+    ["dog_puppet", "--method", "view-oq", "--counting", "merged", "--threshold", "0.03"],
+    ["hanging_dogs", "--dogs", "2", "--seed", "5", "--method", "adaptive", "--threshold", "1e-6"],
+    ["falling_character", "--method", "view-bvh", "--threshold", "0.01", "--camera-distance",
+     "6"],
+])
+def test_run_every_scene(argv, tmp_path):
+    out = tmp_path / "run.json"
+    assert main(["run", *argv, "--steps", "30", "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert data["scene"] == argv[0] and data["steps"] == 30
+    assert 0 < data["active_joints_mean"] <= data["joints"]
+    if argv[0] == "hanging_dogs":
+        assert data["bodies"] == 32 and data["params"]["seed"] == 5
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "dog_puppet", "--bodies", "3"], "scene 'dog_puppet' does not take --bodies"),
+    (["run", "pendulum", "--dogs", "3"], "scene 'pendulum' does not take --dogs"),
+    (["render", "pendulum", "--out", "x.bmp", "--steps", "1"], "suffix must be one of"),
+])
+def test_scene_option_errors(argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main([*argv, "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_render_gif_with_groups_and_active_joints(tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "pendulum.gif"
+    assert main(["render", "pendulum", "--bodies", "8", "--method", "adaptive", "--threshold",
+                 "1e-4", "--steps", "40", "--every", "10", "--size", "160x120",
+                 "--show-active", "--out", str(out), "--no-progress"]) == 0
+    with Image.open(out) as gif:
+        assert gif.n_frames >= 2 and gif.size == (160, 120)
+
+
+def test_render_strip_at_two_distances(tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "strip.png"
+    assert main(["render", "falling_character", "--method", "view-bvh", "--threshold", "0.01",
+                 "--steps", "40", "--strip", "3", "--distances", "3,30", "--size", "120x90",
+                 "--out", str(out), "--no-progress"]) == 0
+    with Image.open(out) as strip:
+        width, height = strip.size
+    assert width >= 3 * 120 and height >= 2 * 90                 # 3 frames, 2 distances
+
+
+def test_render_frames_and_mp4(tmp_path):
+    assert main(["render", "pendulum", "--bodies", "4", "--steps", "20", "--every", "10",
+                 "--size", "64x48", "--out", str(tmp_path / "f.png"), "--no-progress"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0000.png", "f_0001.png",
+                                                          "f_0002.png"]
+    assert main(["render", "pendulum", "--bodies", "4", "--steps", "20", "--every", "5",
+                 "--size", "64x48", "--out", str(tmp_path / "f.mp4"), "--no-progress"]) == 0
+    assert (tmp_path / "f.mp4").stat().st_size > 0

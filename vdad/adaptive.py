@@ -166,8 +166,10 @@ class AdaptiveDynamics:
     kappa: hysteresis factor: front nodes are released above ``threshold``,
     active nodes keep their accelerations down to ``threshold / kappa`` and are
     rigidified below it (in budget mode active nodes compete with ``kappa``
-    times their score). A free joint to the world is never rigidified. dwell: steps a
-    node keeps a new state. policy: ``"momentum"`` (locking impulse) or
+    times their score). A free joint to the world is never rigidified, and its
+    accelerations (with those of the nodes above it) are always computed: a
+    floating body whose weight were dropped would fly in a straight line.
+    dwell: steps a node keeps a new state. policy: ``"momentum"`` (locking impulse) or
     ``"zero"`` (zero the velocities of newly rigid joints, as the paper).
     lookahead: release front joints whose look-ahead score is high.
     metric: ``"coefficients"`` predicts ``A(C)`` from (T16)-(T18) before any
@@ -536,7 +538,8 @@ class AdaptiveDynamics:
         if self.budget is not None:
             self.desc[lv.node] = True
             return None
-        go = self.desc[lv.node_up] & (self.score_A(A, lv.node) > self._keep)
+        go = self.desc[lv.node_up] & ((self.score_A(A, lv.node) > self._keep)
+                                      | self.pinned[lv.node])
         self.desc[lv.node] = go
         rows = np.flatnonzero(go)
         self._rows[n] = rows if len(rows) < len(go) else None
@@ -561,6 +564,8 @@ class AdaptiveDynamics:
                                 strict=True))
 
         def key(node):
+            if self.active[node] and self.pinned[node]:
+                return np.inf
             if self.active[node]:
                 return self.kappa * float(self.score_A(self.metric.A[node], node))
             return la_score.get(node, -1.0)
@@ -570,7 +575,7 @@ class AdaptiveDynamics:
         heapq.heapify(heap)
         popped = self._popped
         count = 0
-        while heap and count < self.budget:
+        while heap and (count < self.budget or heap[0][0] == -np.inf):
             _, node = heapq.heappop(heap)
             popped[node] = True
             count += 1

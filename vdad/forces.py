@@ -174,7 +174,7 @@ class RandomTorques:
         self.magnitude = float(_finite("magnitude", magnitude, nonnegative=True))
         self.rate = float(_finite("rate", rate, nonnegative=True))
         self.duration = float(_finite("duration", duration, positive=True))
-        if int(seed) != seed or seed < 0:
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise InputError(f"seed must be an integer >= 0, got {seed!r}")
         self.seed = int(seed)
         self._windows = {}
@@ -261,8 +261,9 @@ class FloorContact:
     with the horizontal floor ``z = height`` (Kim 2008 §6.1, the falling
     character), with Coulomb-style friction.
 
-    Each body of mass ``m`` with ``n`` contact points rests on them as a mass on
-    a spring of natural ``frequency`` w (rad/s) and ``damping_ratio``: a point at
+    Each body of mass ``m`` with ``n`` contact points, all touching, rests on
+    them as a mass on a spring of natural ``frequency`` w (rad/s) and
+    ``damping_ratio`` (fewer touching: a softer spring): a point at
     depth ``d`` pushes up with ``F_n = max(0, m w^2 d / n - 2 zeta m w v_z / n)``
     (no suction) at the sphere's lowest point. Friction opposes the sliding
     velocity ``v_t`` of that point with ``min(mu F_n, c |v_t|)``, ``c = 2 zeta m w
@@ -360,12 +361,18 @@ class JointLimits:
             kinds = [s.kind for s in stages]
             I_joint = joint_inertia(model, j)
             if kinds in (["hinge"], ["slide"]):
+                if np.shape(limit) != (2,):
+                    raise InputError(f"limits[{name!r}]: a one-dof joint takes (low, high), "
+                                     f"got {limit!r}")
                 low, high = _finite(f"limits[{name!r}]", limit, (2,))
                 if low > high:
                     raise InputError(f"joint {name!r}: limit low {low} > high {high}")
                 inertia = joint_inertia(model, j, "mass") if kinds == ["slide"] else I_joint
                 hinge.append((model.v_start[j], low, high, inertia))
             elif kinds == ["ball"]:
+                if np.ndim(limit) != 0:
+                    raise InputError(f"limits[{name!r}]: a ball joint takes one cone angle, "
+                                     f"got {limit!r}")
                 angle = float(_finite(f"limits[{name!r}]", limit, positive=True))
                 ball.append((model.q_start[j], model.v_start[j], angle, I_joint))
             else:
