@@ -182,3 +182,13 @@ def test_puppet_legs_below_the_view_are_rigid_with_view_bvh():
     assert mean["below_view"] <= 4 < mean["open"]
     # bounding volumes model no occlusion: the wall hides nothing from them
     assert mean["behind_wall"] >= 6
+
+
+def test_a_rigid_character_still_falls():
+    """Every internal joint rigid (a huge threshold): the floating base keeps its
+    accelerations, so the character falls as one body instead of hovering."""
+    scene = falling_character()
+    sim = scene.simulator(method="adaptive", threshold=1e3)
+    sim.step(1000)
+    assert max(s.active_joints for s in sim.history[10:]) < scene.model.nb
+    assert sim.q[2] < 0.3 * scene.q0[2]
