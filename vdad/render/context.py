@@ -70,6 +70,25 @@ def _create(width, height):
     return renderer, name
 
 
+def check_view(camera, R, p, nb):
+    """``(R, p)`` as float arrays (nb, 3, 3), (nb, 3) for rendering ``nb`` bodies
+    seen by ``camera``, or an :class:`InputError` naming what is wrong."""
+    import numpy as np
+
+    from ..camera import Camera
+
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera must be a vdad.camera.Camera, got {type(camera).__name__}")
+    R, p = np.asarray(R, dtype=float), np.asarray(p, dtype=float)
+    if R.shape != (nb, 3, 3):
+        raise InputError(f"R must have shape ({nb}, 3, 3), got {R.shape}")
+    if p.shape != (nb, 3):
+        raise InputError(f"p must have shape ({nb}, 3), got {p.shape}")
+    if not (np.isfinite(R).all() and np.isfinite(p).all()):
+        raise InputError("R and p must be finite")
+    return R, p
+
+
 def gl_context(width=None, height=None):
     """The process-wide ``pyrender.OffscreenRenderer`` (created on first use, at
     ``width`` x ``height``, default 320 x 240). Given ``width`` and ``height``,

@@ -32,7 +32,6 @@ import weakref
 
 import numpy as np
 
-from ..camera import Camera
 from ..environment import Environment
 from ..errors import InputError, RenderError
 from ..model import Model
@@ -235,15 +234,7 @@ class PixelCounter:
     def _upload(self, camera, R, p):
         """Check the inputs, bind the counter's GL state, upload the clip-from-local
         matrices (one texture-buffer upload) and clear the framebuffer."""
-        if not isinstance(camera, Camera):
-            raise InputError(f"camera must be a vdad.camera.Camera, got {type(camera).__name__}")
-        R, p = np.asarray(R, dtype=float), np.asarray(p, dtype=float)
-        if R.shape != (self.nb, 3, 3):
-            raise InputError(f"R must have shape ({self.nb}, 3, 3), got {R.shape}")
-        if p.shape != (self.nb, 3):
-            raise InputError(f"p must have shape ({self.nb}, 3), got {p.shape}")
-        if not (np.isfinite(R).all() and np.isfinite(p).all()):
-            raise InputError("R and p must be finite")
+        R, p = context.check_view(camera, R, p, self.nb)
         if not self._finalizer.alive:
             raise RenderError("this PixelCounter is closed: its GL objects are deleted")
         if camera is not self._camera:

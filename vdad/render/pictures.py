@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera, camera_at
+from ..camera import camera_at
 from ..environment import Environment
 from ..errors import InputError, RenderError
 from ..model import Model
@@ -263,15 +263,7 @@ class SceneRenderer:
         segmentation pass; its ``RenderFlags.FLAT`` keeps the 4x multisampling,
         whose edge blends outnumber the exact pixels of thin links).
         """
-        if not isinstance(camera, Camera):
-            raise InputError(f"camera must be a vdad.camera.Camera, got {type(camera).__name__}")
-        R, p = np.asarray(R, dtype=float), np.asarray(p, dtype=float)
-        if R.shape != (self.nb, 3, 3):
-            raise InputError(f"R must have shape ({self.nb}, 3, 3), got {R.shape}")
-        if p.shape != (self.nb, 3):
-            raise InputError(f"p must have shape ({self.nb}, 3), got {p.shape}")
-        if not (np.isfinite(R).all() and np.isfinite(p).all()):
-            raise InputError("R and p must be finite")
+        R, p = context.check_view(camera, R, p, self.nb)
         if colors is not None:
             colors = np.asarray(colors)
             if colors.shape != (self.nb, 3) or not np.issubdtype(colors.dtype, np.integer) or (
