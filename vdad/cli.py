@@ -275,14 +275,14 @@ def render_scene(args):
         every = max(1, args.steps // max(args.strip - 1, 1))
     w, h = args.size
     rows = []
-    with SceneRenderer(first.model, first.environment, w, h) as renderer:
-        for d, _, sim in runs:
-            label = f"{first.name} ({args.method}" + (f", viewer at {d:g} m)" if d else ")")
-            print(f"rendering {label}", file=sys.stderr)
+    for d, scene, sim in runs:
+        label = f"{first.name} ({args.method}" + (f", viewer at {d:g} m)" if d else ")")
+        print(f"rendering {label}", file=sys.stderr)
+        with SceneRenderer(scene.model, scene.environment, w, h) as renderer:
             frames = record(sim, args.steps, every, renderer=renderer, camera=first.camera,
                             color=args.color, show_active=args.show_active,
                             progress=not args.no_progress)
-            rows.append(frames[:args.strip] if args.strip else frames)
+        rows.append(frames[:args.strip] if args.strip else frames)
     if args.strip:
         images = [f for row in rows for f in row]
         labels = [f"t = {f.t:.2f} s, {f.n_groups} groups" + (f", {d:g} m" if d else "")
