@@ -35,6 +35,39 @@ def check_vector(name, x, n, allow_none=False):
     return a
 
 
+def check_real(name, value, shape=None, positive=False, nonnegative=False):
+    """``value`` as a finite float array (broadcast to ``shape`` if given; a
+    scalar stays 0-d), optionally ``> 0`` or ``>= 0``, or an InputError naming
+    ``name``."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be numeric, got {value!r}") from None
+    if shape is not None:
+        try:
+            a = np.broadcast_to(a, shape).copy()
+        except ValueError:
+            raise InputError(f"{name} must have shape {shape} (or broadcast to it), got "
+                             f"{a.shape}") from None
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{name} must be finite, got {value}")
+    if positive and np.any(a <= 0):
+        raise InputError(f"{name} must be positive, got {value}")
+    if nonnegative and np.any(a < 0):
+        raise InputError(f"{name} must be >= 0, got {value}")
+    return a
+
+
+def check_count(name, value, minimum=1):
+    """``value`` as an int if it is a whole number ``>= minimum``, or an
+    InputError naming ``name``."""
+    a = check_real(name, value)
+    if a.ndim or a != int(a) or a < minimum:
+        what = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
+        raise InputError(f"{name} must be {what}, got {value!r}")
+    return int(a)
+
+
 def check_wrenches(model, f_ext):
     """``f_ext`` as a finite (nb, 6) array, or None."""
     if f_ext is None:

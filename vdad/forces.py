@@ -19,26 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .dynamics import check_real
 from .errors import InputError, ModelError
 from .kinematics import body_poses, body_velocities, joint_kinematics, joint_set
 from .spatial import cross3, mv, quat_log
-
-
-def _finite(name, value, shape=None, positive=False, nonnegative=False):
-    a = np.asarray(value, dtype=float)
-    if shape is not None:
-        try:
-            a = np.broadcast_to(a, shape).copy()
-        except ValueError:
-            raise InputError(f"{name} must have shape {shape} (or broadcast to it), got "
-                             f"{a.shape}") from None
-    if not np.all(np.isfinite(a)):
-        raise InputError(f"{name} must be finite, got {value}")
-    if positive and np.any(a <= 0):
-        raise InputError(f"{name} must be positive, got {value}")
-    if nonnegative and np.any(a < 0):
-        raise InputError(f"{name} must be >= 0, got {value}")
-    return a
 
 
 def _bodies(model, bodies, name="bodies"):
@@ -112,12 +96,12 @@ class Springs:
         self.model = model
         self.bodies = _bodies(model, bodies)
         k = len(self.bodies)
-        self.points = _finite("points", points, (k, 3))
+        self.points = check_real("points", points, (k, 3))
         self.moving = callable(anchors)
-        self.anchors = anchors if self.moving else _finite("anchors", anchors, (k, 3))
-        self.stiffness = _finite("stiffness", stiffness, (k,), nonnegative=True)
-        self.damping = _finite("damping", damping, (k,), nonnegative=True)
-        self.rest_length = _finite("rest_length", rest_length, (k,), nonnegative=True)
+        self.anchors = anchors if self.moving else check_real("anchors", anchors, (k, 3))
+        self.stiffness = check_real("stiffness", stiffness, (k,), nonnegative=True)
+        self.damping = check_real("damping", damping, (k,), nonnegative=True)
+        self.rest_length = check_real("rest_length", rest_length, (k,), nonnegative=True)
         self.string = bool(string)
 
     def anchor_state(self, t):
@@ -125,7 +109,7 @@ class Springs:
         if not self.moving:
             return self.anchors, np.zeros_like(self.anchors)
         k = len(self.bodies)
-        a = _finite("anchors(t)", self.anchors(t), (k, 3))
+        a = check_real("anchors(t)", self.anchors(t), (k, 3))
         h = 1e-4
         va = (np.asarray(self.anchors(t + h), float) - np.asarray(self.anchors(t - h), float))
         return a, va / (2 * h)
@@ -168,12 +152,14 @@ class RandomTorques:
     the integrator's evaluation order or the method.
     """
 
+    needs_states = False          # torques do not depend on the bodies' states
+
     def __init__(self, model, bodies, magnitude, rate=1.0, duration=0.1, seed=0):
         self.model = model
         self.bodies = _bodies(model, bodies)
-        self.magnitude = float(_finite("magnitude", magnitude, nonnegative=True))
-        self.rate = float(_finite("rate", rate, nonnegative=True))
-        self.duration = float(_finite("duration", duration, positive=True))
+        self.magnitude = float(check_real("magnitude", magnitude, nonnegative=True))
+        self.rate = float(check_real("rate", rate, nonnegative=True))
+        self.duration = float(check_real("duration", duration, positive=True))
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise InputError(f"seed must be an integer >= 0, got {seed!r}")
         self.seed = int(seed)
@@ -182,9 +168,11 @@ class RandomTorques:
     def pulses(self, window):
         """``(body rows, start times, torques (n, 3))`` of the pulses starting in
         ``[window, window + 1)`` s."""
+        if window < 0:
+            return np.zeros(0, int), np.zeros(0), np.zeros((0, 3))
         if window not in self._windows:
-            rng = np.random.default_rng([self.seed, max(window, 0)])
-            n = rng.poisson(self.rate * len(self.bodies)) if window >= 0 else 0
+            rng = np.random.default_rng([self.seed, window])
+            n = rng.poisson(self.rate * len(self.bodies))
             rows = rng.integers(len(self.bodies), size=n)
             start = window + rng.random(n)
             axis = rng.normal(size=(n, 3))
@@ -213,7 +201,7 @@ class Drag:
 
     def __init__(self, model, rate, bodies=None):
         self.model = model
-        self.rate = float(_finite("rate", rate, nonnegative=True))
+        self.rate = float(check_real("rate", rate, nonnegative=True))
         self.bodies = np.arange(model.nb) if bodies is None else _bodies(model, bodies)
 
     def wrenches(self, t, states):
@@ -276,10 +264,10 @@ class FloorContact:
     def __init__(self, model, height=0.0, frequency=150.0, damping_ratio=0.7, friction=0.8,
                  bodies=None):
         self.model = model
-        self.height = float(_finite("height", height))
-        self.frequency = float(_finite("frequency", frequency, positive=True))
-        self.damping_ratio = float(_finite("damping_ratio", damping_ratio, nonnegative=True))
-        self.friction = float(_finite("friction", friction, nonnegative=True))
+        self.height = float(check_real("height", height))
+        self.frequency = float(check_real("frequency", frequency, positive=True))
+        self.damping_ratio = float(check_real("damping_ratio", damping_ratio, nonnegative=True))
+        self.friction = float(check_real("friction", friction, nonnegative=True))
         chosen = None if bodies is None else _bodies(model, bodies)
         body, self.centres, self.radii = contact_points(model, chosen)
         self.bodies, self.point_body = np.unique(body, return_inverse=True)
@@ -352,8 +340,8 @@ class JointLimits:
 
     def __init__(self, model, limits, frequency=60.0, damping_ratio=1.0):
         self.model = model
-        frequency = float(_finite("frequency", frequency, positive=True))
-        zeta = float(_finite("damping_ratio", damping_ratio, nonnegative=True))
+        frequency = float(check_real("frequency", frequency, positive=True))
+        zeta = float(check_real("damping_ratio", damping_ratio, nonnegative=True))
         hinge, ball = [], []
         for name, limit in limits.items():
             j = model.joint_index(name)
@@ -364,7 +352,7 @@ class JointLimits:
                 if np.shape(limit) != (2,):
                     raise InputError(f"limits[{name!r}]: a one-dof joint takes (low, high), "
                                      f"got {limit!r}")
-                low, high = _finite(f"limits[{name!r}]", limit, (2,))
+                low, high = check_real(f"limits[{name!r}]", limit, (2,))
                 if low > high:
                     raise InputError(f"joint {name!r}: limit low {low} > high {high}")
                 inertia = joint_inertia(model, j, "mass") if kinds == ["slide"] else I_joint
@@ -373,7 +361,7 @@ class JointLimits:
                 if np.ndim(limit) != 0:
                     raise InputError(f"limits[{name!r}]: a ball joint takes one cone angle, "
                                      f"got {limit!r}")
-                angle = float(_finite(f"limits[{name!r}]", limit, positive=True))
+                angle = float(check_real(f"limits[{name!r}]", limit, positive=True))
                 ball.append((model.q_start[j], model.v_start[j], angle, I_joint))
             else:
                 raise ModelError(f"joint {name!r}: limits need a one-dof or ball joint, not "
@@ -419,7 +407,8 @@ class Forces:
     Elements with ``wrenches(t, states)`` (springs, random torques, contact) give
     :meth:`external`; elements with ``tau(t, q, qd, out)`` (joint limits) give
     :meth:`controller`. The body states every wrench element needs are computed
-    once per call, for those bodies only."""
+    once per call, for those bodies only (an element whose ``needs_states`` is
+    False gets ``None``)."""
 
     def __init__(self, model, elements):
         self.model = model
@@ -430,7 +419,7 @@ class Forces:
                                  f"model than {model.name!r}")
         self.wrench_elements = [e for e in self.elements if hasattr(e, "wrenches")]
         self.tau_elements = [e for e in self.elements if hasattr(e, "tau")]
-        self._needs = [not isinstance(e, RandomTorques) for e in self.wrench_elements]
+        self._needs = [getattr(e, "needs_states", True) for e in self.wrench_elements]
         bodies = [e.bodies for e, need in zip(self.wrench_elements, self._needs, strict=True)
                   if need]
         self.state_bodies = np.unique(np.concatenate(bodies)) if bodies else np.zeros(0, int)
@@ -439,10 +428,11 @@ class Forces:
         row[self.state_bodies] = np.arange(len(self.state_bodies))
         self._rows = [row[e.bodies] for e in self.wrench_elements]
 
-    def states_of(self, element, q, qd):
-        """The body states (:class:`BodyStates` output) of ``element``'s bodies."""
+    def states_of(self, element, q, qd, states=None):
+        """The body states (:class:`BodyStates` output) of ``element``'s bodies;
+        ``states``: those of all :attr:`state_bodies`, if already computed."""
         rows = self._rows[self.wrench_elements.index(element)]
-        return tuple(s[rows] for s in self.states(q, qd))
+        return tuple(s[rows] for s in (self.states(q, qd) if states is None else states))
 
     @property
     def external(self):
@@ -471,9 +461,11 @@ class Forces:
     def potential_energy(self, t, q):
         """Elastic energy stored in the springs, contacts and limits at ``(t, q)``."""
         e = 0.0
+        qd = np.zeros(self.model.nv)
+        states = self.states(q, qd) if self.states is not None else None
         for el in self.wrench_elements:
             if hasattr(el, "energy"):
-                e += el.energy(t, self.states_of(el, q, np.zeros(self.model.nv)))
+                e += el.energy(t, self.states_of(el, q, qd, states))
         for el in self.tau_elements:
             e += el.energy(q)
         return e

@@ -7,9 +7,10 @@ from dataclasses import replace
 import numpy as np
 
 from ..camera import Camera, Dolly
+from ..dynamics import check_count, check_real
 from ..environment import floor
 from ..errors import InputError
-from ..forces import FloorContact, Forces, JointLimits, joint_inertia
+from ..forces import BodyStates, FloorContact, Forces, JointLimits, joint_inertia
 from ..model import Joint, Model, Pose
 from ..spatial import quat_exp, quat_mul
 from .base import Scene, rod
@@ -80,10 +81,8 @@ def humanoid(scale=1.0, joint_damping=10.0):
     (:func:`~vdad.forces.joint_inertia`): limp muscles, a ragdoll. Returns
     ``(model, limits)``, the limits in the form :class:`~vdad.forces.JointLimits`
     takes."""
-    if not (np.isfinite(scale) and scale > 0):
-        raise InputError(f"scale must be a positive number, got {scale}")
-    if not (np.isfinite(joint_damping) and joint_damping >= 0):
-        raise InputError(f"joint_damping must be >= 0, got {joint_damping}")
+    check_real("scale", scale, positive=True)
+    check_real("joint_damping", joint_damping, nonnegative=True)
     sc = float(scale)
     bodies, joints, limits = [], [], {}
     for name, parent, kind, axis, at, a, b, r, m, limit, rgba in SKELETON:
@@ -100,8 +99,7 @@ def humanoid(scale=1.0, joint_damping=10.0):
 
 def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0,
                       joint_damping=40.0, floor_frequency=250.0, friction=0.8,
-                      camera_distance=3.0,
-                      camera_speed=3.0, resolution=(320, 240)):
+                      camera_distance=3.0, camera_speed=3.0, resolution=(320, 240)):
     """A character of 29 bodies falls onto a floor under gravity while the viewer
     moves away (Kim 2008 §6.1, Figures 1 and 7).
 
@@ -116,15 +114,16 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
     in front and to the side, and moves away at ``camera_speed`` m/s (a
     :class:`~vdad.camera.Dolly`).
     """
-    for name, v in (("dt", dt), ("camera_distance", camera_distance)):
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{name} must be a positive number, got {v}")
+    for name, v in (("dt", dt), ("camera_distance", camera_distance),
+                    ("floor_frequency", floor_frequency)):
+        check_real(name, v, positive=True)
+    seed = check_count("seed", seed, 0)
     if floor_frequency * dt > 0.5:
         raise InputError(f"floor_frequency * dt = {floor_frequency * dt:.3g} > 0.5: the floor "
                          f"contact is unstable at this time step; lower one of them")
-    for name, v in (("drop", drop), ("push", push), ("camera_speed", camera_speed)):
-        if not np.isfinite(v):
-            raise InputError(f"{name} must be finite, got {v}")
+    for name, v in (("lean", lean), ("drop", drop), ("push", push),
+                    ("camera_speed", camera_speed)):
+        check_real(name, v)
     model, limits = humanoid(scale, joint_damping)
     rng = np.random.default_rng(seed)
     q0 = np.array(model.q_neutral)
@@ -142,8 +141,6 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
         q0[model.q_start[model.joint_index(f"{side}tibia")]] = 0.1
     root = model.q_start[model.joint_index("pelvis")]
     q0[root + 3:root + 7] = quat_exp(np.array([0.0, lean, 0.0]))
-    from ..forces import BodyStates
-
     contact = FloorContact(model, 0.0, floor_frequency, friction=friction)
     lowest = contact.points(BodyStates(model, contact.bodies)(q0, np.zeros(model.nv)))[0]
     q0[root + 2] = drop - lowest[:, 2].min()
@@ -160,6 +157,5 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
                  environment=floor(0.0), forces=forces,
                  params=dict(dt=dt, scale=scale, lean=lean, drop=drop, push=push, seed=seed,
                              joint_damping=joint_damping, floor_frequency=floor_frequency,
-                             friction=friction,
-                             camera_distance=camera_distance, camera_speed=camera_speed,
-                             resolution=tuple(resolution)))
+                             friction=friction, camera_distance=camera_distance,
+                             camera_speed=camera_speed, resolution=tuple(resolution)))

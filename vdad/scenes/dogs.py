@@ -8,11 +8,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera
+from ..dynamics import check_count, check_real
 from ..environment import wall
 from ..errors import InputError
 from ..forces import BodyStates, Drag, Forces, RandomTorques, Springs
 from ..model import Joint, Model, Pose
-from ..spatial import quat_exp, quat_to_rot
+from ..spatial import mv, quat_exp, quat_to_rot
 from .base import Scene, rod
 
 BROWN, DARK, LIGHT = (0.62, 0.42, 0.25, 1.0), (0.35, 0.22, 0.12, 1.0), (0.8, 0.65, 0.45, 1.0)
@@ -59,12 +60,6 @@ def toy_dog(prefix=""):
                          axis=(0, 1, 0), stiffness=0.01, damping=0.0003,
                          placement=Pose((0, 0, -0.07)))]
     return bodies, joints
-
-
-def _positive(**values):
-    for name, v in values.items():
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{name} must be a positive number, got {v}")
 
 
 def _place(model, q, prefix, position, yaw=0.0):
@@ -160,10 +155,11 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
     behind the wall, below the view). ``seed`` only names the run: the scene is
     deterministic.
     """
-    _positive(dt=dt, string_stiffness=string_stiffness, camera_distance=camera_distance)
+    for name, v in (("dt", dt), ("string_stiffness", string_stiffness),
+                    ("camera_distance", camera_distance)):
+        check_real(name, v, positive=True)
     for name, v in (("string_damping", string_damping), ("drag", drag)):
-        if not (np.isfinite(v) and v >= 0):
-            raise InputError(f"{name} must be a number >= 0, got {v}")
+        check_real(name, v, nonnegative=True)
     stick = default_stick_path() if stick is None else stick
     if not callable(stick):
         raise InputError(f"stick must be a StickPath or a callable t -> (6, 3) points, got "
@@ -179,7 +175,7 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
     points = np.array([p for _, p in STRUNG], float)
     # rest lengths: the strings as they hang at the start, the leg strings 2 cm slack
     R, p = BodyStates(model, [model.body_index(b) for b in names])(q0, np.zeros(model.nv))[:2]
-    length = np.linalg.norm(p + np.einsum("kij,kj->ki", R, points) - top, axis=1)
+    length = np.linalg.norm(p + mv(R, points) - top, axis=1)
     length[2:] += 0.02
     strings = Springs(model, names, points, stick, string_stiffness, string_damping,
                       rest_length=length, string=True)
@@ -220,17 +216,15 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
     above, and looks into the grid: near dogs hide far ones, the outer columns
     are cut by the viewport and the back rows are far away.
     """
-    if int(n_dogs) != n_dogs or n_dogs < 1:
-        raise InputError(f"n_dogs must be a positive integer, got {n_dogs}")
-    if int(columns) != columns or columns < 1:
-        raise InputError(f"columns must be a positive integer, got {columns}")
-    _positive(dt=dt, spring_stiffness=spring_stiffness, camera_distance=camera_distance)
+    n, columns = check_count("n_dogs", n_dogs), check_count("columns", columns)
+    sx, sy = check_real("spacing", spacing, (2,), positive=True)
+    seed = check_count("seed", seed, 0)
+    for name, v in (("dt", dt), ("spring_stiffness", spring_stiffness),
+                    ("camera_distance", camera_distance)):
+        check_real(name, v, positive=True)
     for name, v in (("twist", twist), ("spring_damping", spring_damping), ("torque", torque),
                     ("torque_rate", torque_rate)):
-        if not (np.isfinite(v) and v >= 0):
-            raise InputError(f"{name} must be a number >= 0, got {v}")
-    n, columns = int(n_dogs), int(columns)
-    sx, sy = (float(s) for s in spacing)
+        check_real(name, v, nonnegative=True)
     bodies, joints = [], []
     for d in range(n):
         b, j = toy_dog(f"dog{d:03d}/")
@@ -261,9 +255,8 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
     pulses = RandomTorques(model, torsos, torque, torque_rate, torque_duration, seed=seed)
     forces = Forces(model, [springs, pulses])
     rows = -(-n // columns)
-    centre = np.array([0.0, (rows - 1) * sy / 2, height])
     camera = Camera(position=(0.0, -camera_distance, height + 0.6),
-                    target=(0.0, centre[1] * 0.3, height - 0.1), width=resolution[0],
+                    target=(0.0, 0.15 * (rows - 1) * sy, height - 0.1), width=resolution[0],
                     height=resolution[1], znear=0.05,
                     zfar=10 * (camera_distance + rows * sy))
     return Scene("hanging_dogs", f"{n} toy dogs ({model.nb} bodies) hanging from springs, "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import Camera
+from ..dynamics import check_count, check_real
 from ..errors import InputError
 from ..model import Joint, Model, Pose
 from ..spatial import quat_exp
@@ -28,20 +29,16 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
     from ``camera_distance`` (default: the whole chain in view, 1.1 chain
     lengths), at ``resolution`` pixels with a 60 degree vertical field of view.
     """
-    if int(n_bodies) != n_bodies or n_bodies < 1:
-        raise InputError(f"n_bodies must be a positive integer, got {n_bodies}")
+    n = check_count("n_bodies", n_bodies)
     for name, value in (("link_length", link_length), ("link_mass", link_mass), ("dt", dt)):
-        if not np.isfinite(value) or value <= 0:
-            raise InputError(f"{name} must be positive, got {value}")
+        check_real(name, value, positive=True)
     if axes not in ("y", "alternate"):
         raise InputError(f"axes must be 'y' or 'alternate', got {axes!r}")
     if joint not in ("revolute", "spherical"):
         raise InputError(f"joint must be 'revolute' or 'spherical', got {joint!r}")
-    n = int(n_bodies)
     L, m = float(link_length), float(link_mass)
-    D = 1.1 * n * L if camera_distance is None else float(camera_distance)
-    if not np.isfinite(D) or D <= 0:
-        raise InputError(f"camera_distance must be positive, got {camera_distance}")
+    D = 1.1 * n * L if camera_distance is None else float(
+        check_real("camera_distance", camera_distance, positive=True))
     camera = Camera(position=(0.0, -D, -n * L / 2), target=(0.0, 0.0, -n * L / 2),
                     width=resolution[0], height=resolution[1], znear=0.01 * L,
                     zfar=10 * (D + n * L))
