@@ -267,3 +267,22 @@ def test_pictures_between_rendered_visibility_steps(scene, small):
         _check_group_colours(frame, 20)
     reference = record(scene.simulator(), 0, renderer=small, flat=True)[0]
     np.testing.assert_array_equal(frames[0].image, reference.image)
+
+
+@pytest.mark.parametrize("build", ["pictures", "counting"])
+def test_missing_render_extra_is_a_render_error_before_any_mesh(build, scene, monkeypatch):
+    """Without the render extra (no pyrender, hence no trimesh) the renderer and the
+    pixel counter stop with the install hint, not with an ImportError from meshing."""
+    from vdad.model import Geom
+    from vdad.render import context
+    from vdad.render.counting import PixelCounter
+
+    def no_trimesh(*args, **kwargs):
+        raise ModuleNotFoundError("No module named 'trimesh'")
+
+    monkeypatch.setattr(context, "_renderer", None)
+    monkeypatch.setitem(sys.modules, "pyrender", None)          # import pyrender fails
+    monkeypatch.setattr(Geom, "to_trimesh", no_trimesh)
+    make = SceneRenderer if build == "pictures" else PixelCounter
+    with pytest.raises(RenderError, match=r"pip install 'vdad\[render\]'"):
+        make(scene.model)

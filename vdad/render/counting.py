@@ -144,6 +144,7 @@ class PixelCounter:
         self.nb = model.nb
         if not (isinstance(sections, (int, np.integer)) and sections >= 3):
             raise InputError(f"sections must be a whole number >= 3, got {sections!r}")
+        context.make_current()          # first: a missing extra is a RenderError with the hint
         positions, ids, indices, self._first, self._count = _merged_geometry(
             model, environment, int(sections))
         self._n_indices = indices.size
@@ -152,7 +153,6 @@ class PixelCounter:
         self._samples = np.zeros(self.nb, np.uint32)                   # query results
         self._camera = self._clip_from_world = None                    # last camera seen
 
-        context.make_current()
         from OpenGL import GL
         self._GL = GL
         try:

@@ -171,6 +171,7 @@ class SceneRenderer:
         self.width, self.height = _whole("width", width), _whole("height", height)
         sections = _whole("sections", sections, 3)
         self.model, self.environment, self.nb = model, environment, model.nb
+        context.gl_context()            # first: a missing extra is a RenderError with the hint
         meshes = [[(g, g.to_trimesh(sections)) for g in body.geoms]
                   for body in model.bodies]
         if marker_radius is None:
@@ -180,7 +181,6 @@ class SceneRenderer:
             raise InputError(f"marker_radius must be a positive length, got {marker_radius!r}")
         self.marker_radius = float(marker_radius)
 
-        context.gl_context()
         import pyrender
         import trimesh
 
