@@ -40,8 +40,8 @@ def _bodies(model, bodies, name="bodies"):
 
 
 class BodyStates:
-    """World poses and velocities of a few ``bodies`` of ``model`` from the full
-    state, through the joint set of their ancestors only.
+    """Theory §3 restricted to a few ``bodies`` of ``model``: their world poses and
+    velocities from the full state, through the joint set of their ancestors only.
 
     Calling it with ``(q, qd)`` gives ``R`` (k, 3, 3), ``p`` (k, 3) (body frames),
     ``w`` (k, 3) angular velocity and ``v`` (k, 3) velocity of the body origin,
@@ -194,8 +194,8 @@ class RandomTorques:
 
 
 class Drag:
-    """Linear drag (still air, or a puppet's friction): on each of ``bodies``
-    (default all) the force ``-rate m v`` at its centre of mass and the torque
+    """Linear drag (``docs/forces.md``; still air, or a puppet's friction): on
+    each of ``bodies`` (default all) the force ``-rate m v`` at its centre of mass and the torque
     ``-rate I w`` (``I`` in world axes), ``rate`` in 1/s: free motion decays as
     ``exp(-rate t)``. Stable while ``rate dt < 1``."""
 
@@ -215,10 +215,11 @@ class Drag:
 
 
 def contact_points(model, bodies=None):
-    """Contact spheres from body geometry: ``(body (m,), centre (m, 3) in the body
-    frame, radius (m,))``. A sphere is itself; a capsule or cylinder gives its two
-    end centres and its middle with its radius (a cylinder's rims are rounded);
-    a box its 8 corners and a mesh the vertices of its convex hull (radius 0)."""
+    """Contact spheres from body geometry (``docs/forces.md``, floor contact):
+    ``(body (m,), centre (m, 3) in the body frame, radius (m,))``. A sphere is
+    itself; a capsule or cylinder gives its two end centres and its middle with
+    its radius (a cylinder's rims are rounded); a box its 8 corners and a mesh
+    the vertices of its convex hull (radius 0)."""
     bodies = range(model.nb) if bodies is None else bodies
     rows = []
     for b in bodies:
@@ -327,8 +328,9 @@ def joint_inertia(model, j, kind="inertia"):
 
 
 class JointLimits:
-    """Penalty joint limits: a hinge or slide leaves ``[low, high]``, a ball joint
-    turns more than ``angle`` from its zero (a cone on the rotation vector).
+    """Penalty joint limits (``docs/forces.md``): a hinge or slide leaves
+    ``[low, high]``, a ball joint turns more than ``angle`` from its zero (a cone
+    on the rotation vector).
 
     limits: ``{joint name: (low, high)}`` for one-dof joints, ``{joint name:
     angle}`` for ball joints. Beyond a limit by ``e``, the joint feels
