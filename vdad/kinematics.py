@@ -310,6 +310,13 @@ def body_poses(js, R_rel, p_rel):
     return R[:-1], p[:-1]
 
 
+def world_poses(model, q):
+    """World poses ``R`` (nb, 3, 3), ``p`` (nb, 3) of every body of ``model`` at
+    configuration ``q`` (nq,)."""
+    js = plan(model)
+    return body_poses(js, *joint_kinematics(js, q)[:2])
+
+
 def subtree_sum(js, x):
     """``y_i = sum of x_j over j = i and its ancestors`` by pointer jumping; x (k, ...)."""
     y = np.concatenate([x, np.zeros((1,) + x.shape[1:])])

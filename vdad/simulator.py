@@ -16,14 +16,18 @@ import numpy as np
 
 from . import dca
 from .adaptive import rotational_dofs
+from .baselines import DistanceLOD, Sleeping, root_last_tree
 from .dynamics import check_vector, default_tree, forward_dynamics
 from .errors import InputError, SimulationError
 from .integrators import get_integrator, normalize_configuration
-from .kinematics import body_poses, joint_kinematics, plan
+from .kinematics import world_poses
 
-METHODS = ("dca", "adaptive", "view-bvh", "view-oq")
-VIEW_OPTIONS = {"view-bvh": ("volume", "estimate", "resolution"),
-                "view-oq": ("counting", "resolution")}
+METHODS = ("dca", "adaptive", "view-bvh", "view-oq", "lod-distance", "sleeping")
+METHOD_OPTIONS = {"view-bvh": ("volume", "estimate", "resolution"),
+                  "view-oq": ("counting", "resolution"),
+                  "lod-distance": ("distance",),
+                  "sleeping": ("sleep_speed", "sleep_time")}
+BASELINES = ("lod-distance", "sleeping")
 
 
 class Simulator:
@@ -42,6 +46,11 @@ class Simulator:
     ``"queries"`` or ``"merged"``; :class:`~vdad.visibility.RenderedCounts`,
     needs EGL). Both take ``resolution`` = (width, height) of the counting
     (default: the camera's) and ``coverage_every`` (steps between evaluations).
+    Two game-engine baselines (:mod:`vdad.baselines`, on adaptive dynamics with
+    ``threshold = 0`` and the :func:`~vdad.baselines.root_last_tree`):
+    ``"lod-distance"`` makes whole articulated bodies rigid beyond ``distance``
+    (m) from the camera, ``"sleeping"`` locks those that have moved slower
+    than ``sleep_speed`` for ``sleep_time`` seconds.
     integrator: ``"semi-implicit"`` (symplectic Euler) or ``"rk4"``.
     tree: assembly tree (default: balanced).
 
@@ -56,12 +65,20 @@ class Simulator:
             raise InputError(f"unknown method {method!r}; choose one of {METHODS}")
         if adaptive_options and method == "dca":
             raise InputError(f"options {sorted(adaptive_options)} need method='adaptive'")
-        view = {k: adaptive_options.pop(k) for k in set().union(*VIEW_OPTIONS.values())
+        view = {k: adaptive_options.pop(k) for k in set().union(*METHOD_OPTIONS.values())
                 if k in adaptive_options}
-        wrong = sorted(set(view) - set(VIEW_OPTIONS.get(method, ())))
+        wrong = sorted(set(view) - set(METHOD_OPTIONS.get(method, ())))
         if wrong:
             raise InputError(f"options {wrong} do not apply to method {method!r}")
-        if method.startswith("view") and camera is None:
+        if method in BASELINES:
+            given = sorted({"threshold", "budget"} & set(adaptive_options))
+            if given:
+                raise InputError(f"method {method!r} runs with threshold 0; {given} do not "
+                                 f"apply")
+            if method == "lod-distance" and view.get("distance") is None:
+                raise InputError("method 'lod-distance' needs distance= (m)")
+            adaptive_options["threshold"] = 0.0
+        if (method.startswith("view") or method == "lod-distance") and camera is None:
             raise InputError(f"method {method!r} needs a camera (vdad.camera.Camera or a "
                              f"callable t -> Camera)")
         if not np.isfinite(dt) or dt <= 0:
@@ -71,7 +88,9 @@ class Simulator:
         self.dt = float(dt)
         self.integrator_name = integrator
         self._integrate = get_integrator(integrator)
-        self.tree = default_tree(model) if tree is None else tree
+        if tree is None:
+            tree = root_last_tree(model) if method in BASELINES else default_tree(model)
+        self.tree = tree
         self.data = dca.make_data(self.tree)
         self.controller = controller
         self.external = external
@@ -97,6 +116,11 @@ class Simulator:
                 adaptive_options["coverage"] = RenderedCounts(
                     self.tree, camera, environment, method=view.get("counting", "queries"),
                     resolution=view.get("resolution"))
+            elif method == "lod-distance":
+                adaptive_options["coverage"] = DistanceLOD(self.tree, camera, view["distance"])
+            elif method == "sleeping":
+                adaptive_options["coverage"] = Sleeping(
+                    self.tree, view.get("sleep_speed", 0.05), view.get("sleep_time", 0.5))
             self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
 
     def body_poses(self, bodies=None):
@@ -105,8 +129,7 @@ class Simulator:
         the requested bodies' rigid groups are evaluated."""
         if self.adaptive is not None:
             return self.adaptive.body_poses(self.q, bodies)
-        js = plan(self.model)
-        R, p = body_poses(js, *joint_kinematics(js, self.q)[:2])
+        R, p = world_poses(self.model, self.q)
         return (R, p) if bodies is None else (R[bodies], p[bodies])
 
     def accelerations(self, t, q, qd):

@@ -26,7 +26,7 @@ import numpy as np
 from .bounding import Volumes, areas, body_volumes, check_volume, merge, place
 from .camera import camera_at
 from .errors import InputError
-from .kinematics import body_poses, joint_kinematics, plan
+from .kinematics import world_poses
 
 ESTIMATES = ("min", "node", "bodies")
 
@@ -74,8 +74,7 @@ class _Coverage:
         """World poses of all bodies at ``q`` (from the adaptive region if given)."""
         if adaptive is not None:
             return adaptive.body_poses(q)
-        js = plan(self.model)
-        return body_poses(js, *joint_kinematics(js, q)[:2])
+        return world_poses(self.model, q)
 
 
 class BoundingVolumes(_Coverage):

@@ -1,0 +1,410 @@
+"""Measured visual error of a simplified simulation (Kim 2008 §3.1).
+
+The paper defines the visual error of a simplified simulation as the pixels that
+differ from the frame of the fully simulated one (§3.1.1), and the error of an
+animation segment as the sum of successive static errors (§3.1.2); it then only
+estimates it a priori (§5). Here it is measured a posteriori, frame by frame,
+against a full-DCA reference run from the same initial state, in two ways:
+
+* (a) screen-space displacement: points on the bodies' surfaces, placed by both
+  configurations and projected by the camera; the mean and max displacement in
+  pixels (pure numpy, occlusion ignored);
+* (b) the paper's measure: the number of pixels whose rendered body differs
+  between the two frames, from the id images of
+  :class:`~vdad.render.counting.PixelCounter` (EGL, occlusion by the other
+  bodies and the environment included).
+
+:func:`measure` runs a simulator and its reference (stepped in lockstep, or a
+:class:`Trajectory` recorded earlier by :func:`record`) and returns an
+:class:`ErrorTrace`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera, camera_at
+from .dynamics import check_count, check_real, check_vector
+from .environment import Environment
+from .errors import InputError, SimulationError
+from .kinematics import world_poses
+from .model import Model
+from .simulator import Simulator
+
+MEASURES = ("mean_px", "max_px", "differing_pixels")
+
+
+def _check_simulator(sim):
+    if not isinstance(sim, Simulator):
+        raise InputError(f"sim must be a vdad.Simulator, got {type(sim).__name__}")
+
+
+def _check_model(model):
+    if not isinstance(model, Model):
+        raise InputError(f"model must be a vdad.Model, got {type(model).__name__}")
+
+
+def reference_simulator(sim) -> Simulator:
+    """Kim 2008 §3.1: the fully simulated run that a simplified one is judged
+    against: a ``method="dca"`` :class:`~vdad.Simulator` with ``sim``'s model,
+    initial state (copies), time step, integrator, assembly tree, forces, camera
+    and environment. ``sim`` must not have stepped yet."""
+    _check_simulator(sim)
+    if sim.step_count != 0:
+        raise InputError(f"sim has already taken {sim.step_count} steps; the reference must "
+                         f"start from the same initial state: build it before stepping")
+    ref = Simulator(sim.model, sim.q, sim.qd, dt=sim.dt, method="dca",
+                    integrator=sim.integrator_name, tree=sim.tree, controller=sim.controller,
+                    external=sim.external, camera=sim.camera, environment=sim.environment)
+    # bit for bit: normalising the configuration again may move a quaternion by an ulp
+    ref.q, ref.qd = sim.q.copy(), sim.qd.copy()
+    return ref
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """Kim 2008 §3.1.2: a recorded animation segment: times ``t`` (F,) of its frames,
+    configurations ``q`` (F, nq) at those times, and ``ms_per_step``, the wall time
+    per step of the run that produced it (NaN if unknown)."""
+
+    t: np.ndarray
+    q: np.ndarray
+    ms_per_step: float = float("nan")
+
+    def __post_init__(self):
+        t = check_real("t", self.t)
+        q = check_real("q", self.q)
+        if t.ndim != 1 or q.ndim != 2 or len(q) != len(t):
+            raise InputError(f"a trajectory needs t (F,) and q (F, nq), got t {t.shape} and "
+                             f"q {q.shape}")
+        ms = float(np.asarray(self.ms_per_step, dtype=float))
+        if not (np.isnan(ms) or ms >= 0):
+            raise InputError(f"ms_per_step must be >= 0 or NaN, got {self.ms_per_step!r}")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "q", q)
+        object.__setattr__(self, "ms_per_step", ms)
+
+    def save(self, path):
+        """Write the trajectory to ``path`` as an ``.npz`` archive (at that exact path)."""
+        with open(path, "wb") as fh:
+            np.savez(fh, t=self.t, q=self.q, ms_per_step=self.ms_per_step)
+
+    @classmethod
+    def load(cls, path) -> Trajectory:
+        """The trajectory that :meth:`save` wrote to ``path``."""
+        with np.load(path, allow_pickle=False) as data:
+            missing = sorted({"t", "q", "ms_per_step"} - set(data.files))
+            if missing:
+                raise InputError(f"{path} is not a saved Trajectory: it lacks {missing}")
+            return cls(data["t"], data["q"], float(data["ms_per_step"]))
+
+
+def _frames(steps, every):
+    """``(steps, every, frames)`` checked: ``steps`` a multiple of ``every``."""
+    steps, every = check_count("steps", steps), check_count("every", every)
+    if steps % every:
+        raise InputError(f"steps ({steps}) must be a multiple of every ({every})")
+    return steps, every, steps // every
+
+
+def record(sim, steps, every=1, progress=False) -> Trajectory:
+    """Kim 2008 §3.1.2: step ``sim`` ``steps`` times and keep the state after every
+    ``every``-th step (frames at steps ``every``, ``2 every``, ...). Only the
+    ``sim.step`` calls are timed, for ``ms_per_step``."""
+    from tqdm import tqdm
+
+    _check_simulator(sim)
+    steps, every, frames = _frames(steps, every)
+    t = np.empty(frames)                                    # (F,)
+    q = np.empty((frames, sim.model.nq))                    # (F, nq)
+    elapsed = 0.0
+    with tqdm(total=steps, unit="step", disable=not progress) as bar:
+        for k in range(frames):
+            start = time.perf_counter()
+            sim.step(every)
+            elapsed += time.perf_counter() - start
+            t[k], q[k] = sim.t, sim.q
+            bar.update(every)
+    return Trajectory(t, q, 1e3 * elapsed / steps)
+
+
+def poses(model, q):
+    """Kim 2008 §3.1: where the bodies are drawn in configuration ``q`` (nq,):
+    world rotations ``R`` (nb, 3, 3) and positions ``p`` (nb, 3) of every body."""
+    _check_model(model)
+    q = check_vector("q", q, model.nq)
+    return world_poses(model, q)
+
+
+def surface_points(model, per_body=64, sections=8):
+    """Kim 2008 §3.1: sample points of what the viewer sees of each body: the
+    distinct vertices of its geoms tessellated with ``sections`` segments around
+    (:meth:`~vdad.model.Geom.to_trimesh`, body frame), at most ``per_body`` per body
+    taken evenly along the vertex order. Bodies without geoms get none.
+
+    Returns ``body`` (P,) int64, the body of each point, and ``local`` (P, 3), its
+    position in that body's frame."""
+    _check_model(model)
+    per_body = check_count("per_body", per_body)
+    sections = check_count("sections", sections, minimum=3)
+    meshes = {}                     # id(geom) -> vertices, for geoms shared by bodies
+    body, local = [], []
+    for i, b in enumerate(model.bodies):
+        if not b.geoms:
+            continue
+        for geom in b.geoms:
+            if id(geom) not in meshes:
+                meshes[id(geom)] = np.asarray(geom.to_trimesh(sections).vertices, dtype=float)
+        v = np.concatenate([meshes[id(geom)] for geom in b.geoms])              # (n, 3)
+        _, first = np.unique(np.round(v, 12), axis=0, return_index=True)
+        v = v[np.sort(first)]
+        if len(v) > per_body:
+            v = v[np.arange(per_body) * len(v) // per_body]
+        body.append(np.full(len(v), i, dtype=np.int64))
+        local.append(v)
+    if not body:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    return np.concatenate(body), np.concatenate(local)
+
+
+def _world_points(name, X):
+    X = check_real(name, X)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise InputError(f"{name} must have shape (P, 3), got {X.shape}")
+    return X
+
+
+def screen_displacement(camera, X_ref, X):
+    """Kim 2008 §3.1.1, measured on points: how far, in pixels, ``camera`` sees
+    each world point move from ``X_ref`` (P, 3) in the reference frame to ``X``
+    (P, 3) in the simplified one. Counted are the points in front of the near plane
+    in both frames and inside the viewport in at least one. Occlusion is ignored: a
+    hidden point counts as if seen (the rendered measure of :class:`VisualError`
+    accounts for it).
+
+    Returns the mean and the max displacement over the counted points (0 when none)."""
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera must be a vdad.camera.Camera, got {type(camera).__name__}")
+    X_ref, X = _world_points("X_ref", X_ref), _world_points("X", X)
+    if X.shape != X_ref.shape:
+        raise InputError(f"X_ref and X must have the same shape, got {X_ref.shape} and "
+                         f"{X.shape}")
+    (xy_ref, d_ref), (xy, d) = camera.project(X_ref), camera.project(X)    # (P, 2), (P,)
+    size = np.array([camera.width, camera.height])
+
+    def inside(a):                                                          # (P,) bool
+        return np.all((a >= 0) & (a < size), axis=1)
+
+    counted = (d_ref > camera.znear) & (d > camera.znear) & (inside(xy_ref) | inside(xy))
+    if not counted.any():
+        return 0.0, 0.0
+    moved = np.linalg.norm(xy[counted] - xy_ref[counted], axis=1)          # (counted,)
+    return float(moved.mean()), float(moved.max())
+
+
+class VisualError:
+    """Kim 2008 §3.1.1: the static visual error of a simplified frame of ``model``
+    against the fully simulated one, seen by ``camera`` (a
+    :class:`~vdad.camera.Camera` or a path ``t -> Camera``) among the static
+    occluders of ``environment``, at ``resolution`` (width, height; default: the
+    camera's, for a path the camera at the first call's time).
+
+    Calling it with the time ``t`` and both configurations gives (a) the mean and
+    max screen displacement ``mean_px``, ``max_px`` of up to ``per_body`` surface
+    points per body (:func:`surface_points`, :func:`screen_displacement`;
+    occlusion ignored) and (b) ``differing_pixels``, the paper's count of pixels
+    whose rendered body differs (id images of one
+    :class:`~vdad.render.counting.PixelCounter`, ``"merged"``; needs EGL). With
+    ``pixels=False``, (b) is skipped (None) and nothing renders.
+    """
+
+    def __init__(self, model, camera, environment=None, resolution=None, per_body=64,
+                 pixels=True):
+        _check_model(model)
+        if not (isinstance(camera, Camera) or callable(camera)):
+            raise InputError(f"camera must be a vdad.camera.Camera or a callable t -> Camera, "
+                             f"got {type(camera).__name__}")
+        if not (environment is None or isinstance(environment, Environment)):
+            raise InputError(f"environment must be a vdad.environment.Environment or None, got "
+                             f"{type(environment).__name__}")
+        if resolution is not None:
+            if np.ndim(resolution) != 1 or len(resolution) != 2:
+                raise InputError(f"resolution must be (width, height), got {resolution!r}")
+            resolution = tuple(check_count("resolution", n) for n in resolution)
+        self.model, self.camera, self.environment = model, camera, environment
+        self.resolution, self.pixels = resolution, bool(pixels)
+        self.body, self.local = surface_points(model, per_body)    # (P,), (P, 3)
+        self._counter = None
+
+    def _camera(self, t):
+        """The camera at time ``t`` at the measuring resolution."""
+        camera = camera_at(self.camera, t)
+        if self.resolution is None:
+            self.resolution = (camera.width, camera.height)
+        return camera.with_resolution(*self.resolution)
+
+    def _id_image(self, camera, R, p):
+        """Id image (height, width) of the bodies posed at ``R``, ``p``."""
+        if self._counter is None:
+            from .render.counting import PixelCounter
+
+            self._counter = PixelCounter(self.model, self.environment, *self.resolution,
+                                         method="merged")
+        return self._counter.id_image(camera, R, p)
+
+    def __call__(self, t, q_ref, q) -> dict:
+        """The errors at time ``t`` of configuration ``q`` (nq,) against ``q_ref``
+        (nq,): ``mean_px``, ``max_px`` (floats) and ``differing_pixels`` (int, None
+        without pixels)."""
+        t = float(check_real("t", t))
+        q_ref = check_vector("q_ref", q_ref, self.model.nq)
+        q = check_vector("q", q, self.model.nq)
+        camera = self._camera(t)
+        (R_ref, p_ref), (R, p) = poses(self.model, q_ref), poses(self.model, q)
+        b, x = self.body, self.local
+        X_ref = np.einsum("pij,pj->pi", R_ref[b], x) + p_ref[b]            # (P, 3)
+        X = np.einsum("pij,pj->pi", R[b], x) + p[b]                        # (P, 3)
+        mean_px, max_px = screen_displacement(camera, X_ref, X)
+        differing = None
+        if self.pixels:
+            image_ref = self._id_image(camera, R_ref, p_ref)                # (height, width)
+            differing = int(np.count_nonzero(image_ref != self._id_image(camera, R, p)))
+        return dict(mean_px=mean_px, max_px=max_px, differing_pixels=differing)
+
+    def close(self):
+        """Release the pixel counter's GL objects (if one was made); it renders no more."""
+        if self._counter is not None:
+            self._counter.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+@dataclass(frozen=True, eq=False)
+class ErrorTrace:
+    """Kim 2008 §3.1.2: the static errors of every compared frame: times ``t``,
+    ``mean_px``, ``max_px`` and ``differing_pixels`` (F,) (NaN where not measured)."""
+
+    t: np.ndarray
+    mean_px: np.ndarray
+    max_px: np.ndarray
+    differing_pixels: np.ndarray
+
+    def __post_init__(self):
+        columns = {name: np.asarray(getattr(self, name), dtype=float)
+                   for name in ("t", *MEASURES)}
+        shapes = {name: a.shape for name, a in columns.items()}
+        if any(len(shape) != 1 or shape != shapes["t"] for shape in shapes.values()):
+            raise InputError(f"an error trace needs arrays of one shape (F,), got {shapes}")
+        for name, a in columns.items():
+            object.__setattr__(self, name, a)
+
+    def summary(self) -> dict:
+        """``frames`` and, for each measure, its ``mean`` and ``max`` over the frames
+        and its ``sum`` over them (the paper's sum of successive static errors);
+        None for a measure with no measured frame."""
+        out = {"frames": len(self.t)}
+        for name in MEASURES:
+            a = getattr(self, name)
+            if len(a) == 0 or np.all(np.isnan(a)):
+                out[name] = dict(mean=None, max=None, sum=None)
+            else:
+                out[name] = dict(mean=float(np.mean(a)), max=float(np.max(a)),
+                                 sum=float(np.sum(a)))
+        return out
+
+    def to_csv(self, path):
+        """Write the columns ``t,mean_px,max_px,differing_pixels`` to ``path``."""
+        table = np.column_stack([self.t, *(getattr(self, name) for name in MEASURES)])
+        np.savetxt(path, table.reshape(-1, 4), fmt="%.17g", delimiter=",", comments="",
+                   header=",".join(("t", *MEASURES)))
+
+
+def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
+            resolution=None, pixels=True, per_body=64, progress=False):
+    """Kim 2008 §3.1: step ``sim`` ``steps`` times and measure the visual error of
+    every ``every``-th frame against the fully simulated one: ``reference`` is a
+    :class:`Trajectory` recorded with the same time step and ``every`` (its frame
+    times must match), or None for a :func:`reference_simulator` of ``sim``
+    stepped in lockstep. ``camera`` (Camera or path) and ``environment`` default to
+    ``sim``'s; ``resolution``, ``pixels`` and ``per_body`` go to
+    :class:`VisualError`. A :class:`~vdad.errors.SimulationError` of ``sim``
+    (a diverging simplified run) stops the run there, with the frames so far.
+
+    Returns the :class:`ErrorTrace` and a dict ``info``: ``ms_per_step`` (of the
+    ``sim.step`` calls only), ``reference_ms_per_step`` (of the lockstep reference
+    or the Trajectory's), ``steps`` taken, ``failure`` (None or the
+    SimulationError's message) and ``active_joints``, the mean number of active
+    joints per step (``model.nb`` without adaptive dynamics)."""
+    from tqdm import tqdm
+
+    _check_simulator(sim)
+    steps, every, frames = _frames(steps, every)
+    times = (sim.step_count + every * np.arange(1, frames + 1)) * sim.dt   # (F,)
+    if reference is None:
+        reference = reference_simulator(sim)
+    elif isinstance(reference, Trajectory):
+        if reference.q.shape[1] != sim.model.nq:
+            raise InputError(f"reference configurations have {reference.q.shape[1]} "
+                             f"coordinates, the model {sim.model.nq}")
+        if len(reference.t) < frames or not np.allclose(reference.t[:frames], times, rtol=0,
+                                                        atol=1e-6 * sim.dt):
+            raise InputError(f"reference frame times {reference.t[:3]}... ({len(reference.t)} "
+                             f"frames) do not match this run's {times[:3]}... ({frames} frames): "
+                             f"record it from the same initial time with dt={sim.dt} and "
+                             f"every={every}")
+    else:
+        raise InputError(f"reference must be a Trajectory or None, got "
+                         f"{type(reference).__name__}")
+    camera = sim.camera if camera is None else camera
+    if camera is None:
+        raise InputError("camera: measure needs a camera; pass camera= or give the simulator one")
+    environment = sim.environment if environment is None else environment
+
+    lockstep = isinstance(reference, Simulator)
+    start_step, start_history = sim.step_count, len(sim.history)
+    rows, failure, elapsed, reference_elapsed = [], None, 0.0, 0.0
+    with VisualError(sim.model, camera, environment, resolution, per_body, pixels) as error, \
+            tqdm(total=steps, unit="step", disable=not progress) as bar:
+        for k in range(frames):
+            start = time.perf_counter()
+            try:
+                sim.step(every)
+            except SimulationError as exc:
+                failure = str(exc)
+            finally:
+                elapsed += time.perf_counter() - start
+            if failure is not None:
+                break
+            if lockstep:
+                start = time.perf_counter()
+                reference.step(every)
+                reference_elapsed += time.perf_counter() - start
+                q_ref = reference.q
+            else:
+                q_ref = reference.q[k]
+            e = error(sim.t, q_ref, sim.q)
+            rows.append((sim.t, e["mean_px"], e["max_px"],
+                         np.nan if e["differing_pixels"] is None else e["differing_pixels"]))
+            bar.update(every)
+    done = sim.step_count - start_step
+    history = sim.history[start_history:]
+    if sim.adaptive is None:
+        active = float(sim.model.nb)
+    else:
+        active = float(np.mean([s.active_joints for s in history])) if history else np.nan
+    if not lockstep:
+        reference_ms = reference.ms_per_step
+    else:
+        reference_ms = 1e3 * reference_elapsed / (every * len(rows)) if rows else np.nan
+    info = dict(ms_per_step=1e3 * elapsed / done if done else np.nan,
+                reference_ms_per_step=reference_ms, steps=done, failure=failure,
+                active_joints=active)
+    table = np.array(rows, dtype=float).reshape(-1, 4)                     # (F, 4)
+    return ErrorTrace(*table.T), info
