@@ -22,7 +22,8 @@ def test_run_pendulum_writes_json(tmp_path, capsys):
     assert "ms per step" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["render", "--help"]])
+@pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["render", "--help"],
+                                  ["reproduce", "--help"]])
 def test_help(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         main(argv)
@@ -170,3 +171,27 @@ def test_render_frames_and_mp4(tmp_path):
     assert main(["render", "pendulum", "--bodies", "4", "--steps", "20", "--every", "5",
                  "--size", "64x48", "--out", str(tmp_path / "f.mp4"), "--no-progress"]) == 0
     assert (tmp_path / "f.mp4").stat().st_size > 0
+
+
+def test_run_baselines(tmp_path):
+    far = tmp_path / "far.json"
+    assert main(["run", "pendulum", "--bodies", "6", "--steps", "60", "--method",
+                 "lod-distance", "--distance", "0.01", "--dwell", "0", "--json", str(far),
+                 "--no-progress"]) == 0
+    assert json.loads(far.read_text())["counters_mean"]["active_joints"] < 2
+    sleep = tmp_path / "sleep.json"
+    assert main(["run", "pendulum", "--bodies", "6", "--steps", "60", "--method", "sleeping",
+                 "--sleep-speed", "0.1", "--sleep-time", "0.2", "--json", str(sleep),
+                 "--no-progress"]) == 0
+    assert json.loads(sleep.read_text())["adaptive"] == {
+        "policy": "momentum", "metric": "coefficients", "dwell": 10, "kappa": 4.0,
+        "sleep_speed": 0.1, "sleep_time": 0.2}
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "pendulum", "--method", "lod-distance"], "needs distance"),
+    (["run", "pendulum", "--method", "sleeping", "--threshold", "0.1"], "--threshold"),
+])
+def test_baseline_option_errors(argv, message, capsys):
+    assert main(argv + ["--no-progress"]) == 2
+    assert message in capsys.readouterr().err

@@ -1,0 +1,129 @@
+"""vdad reproduce: the quick reproduction's files and trends, the runs and the report."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from vdad import InputError
+from vdad.cli import main
+from vdad.report import best_under, decreasing
+from vdad.reproduce import EXPERIMENTS, plan, reproduce, run_config
+
+FILES = ["table1.md", "table1.csv", "figure8.png", "figure8.csv", "figure9.png",
+         "figure9.csv", "dogs.md", "dogs.csv", "speed_vs_error.csv", "report.md"] + [
+    f"{kind}_{scene}.png" for kind in ("speed_vs_error", "error_over_time")
+    for scene in ("pendulum", "hanging_dogs", "falling_character")]
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce")
+    assert main(["reproduce", "--quick", "--out", str(out), "--jobs", "2",
+                 "--no-progress"]) == 0
+    return out
+
+
+def _rows(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_quick_writes_every_file(quick):
+    for name in FILES:
+        path = quick / name
+        assert path.stat().st_size > 0, name
+        if name.endswith(".png"):
+            assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    report = (quick / "report.md").read_text()
+    for heading in ("Table 1", "Figure 8", "Figure 9", "Figure 6", "Speed against measured"):
+        assert heading in report
+    assert "0.218" in report and "493" in report                # the paper's numbers beside
+    n_configs = len({json.dumps(c, sort_keys=True) for cs in plan(True).values() for c in cs})
+    assert len(list((quick / "runs").glob("*.json"))) == n_configs
+
+
+def test_quick_has_the_papers_trends(quick):
+    fig8 = _rows(quick / "figure8.csv")
+    for method in ("view-bvh", "view-oq"):
+        rows = sorted((r for r in fig8 if r["method"] == method),
+                      key=lambda r: float(r["error threshold"]))
+        assert all(not r["failure"] for r in rows)
+        lo, hi = rows[0], rows[-1]                  # more threshold: fewer joints, less time
+        assert float(hi["active joints"]) < 0.5 * float(lo["active joints"])
+        assert float(hi["ms/step"]) < float(lo["ms/step"])
+    fig9 = sorted((r for r in _rows(quick / "figure9.csv") if r["method"] == "view-oq"),
+                  key=lambda r: float(r["viewer distance (m)"]))
+    near, far = fig9[0], fig9[-1]                   # more distance: fewer joints, less time
+    assert float(far["active joints"]) < 0.5 * float(near["active joints"])
+    assert float(far["ms/step"]) < float(near["ms/step"])
+    table1 = _rows(quick / "table1.csv")
+    dca = [r for r in table1 if r["method"] == "dca"][0]
+    assert float(dca["active joints"]) == 20 and float(dca["mean px error"]) == 0
+    for r in table1:
+        if r["method"] != "dca":
+            assert float(r["active joints"]) < 20
+
+
+def test_speed_study_covers_every_family_and_measures_error(quick):
+    rows = _rows(quick / "speed_vs_error.csv")
+    for scene in ("pendulum", "hanging_dogs", "falling_character"):
+        mine = [r for r in rows if r["scene"] == scene]
+        families = {r["family"] for r in mine}
+        assert families >= {"adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb",
+                            "view-oq", "lod-distance", "sleeping", "dca"}
+        dca = [r for r in mine if r["family"] == "dca"][0]
+        assert float(dca["mean px (mean)"]) == 0 and float(dca["differing px (mean)"]) == 0
+        assert any(float(r["mean px (mean)"]) > 0 for r in mine if not r["failure"])
+
+
+def test_a_second_run_recomputes_nothing(quick):
+    stamps = {p.name: p.stat().st_mtime_ns for p in (quick / "runs").glob("*.json")}
+    reproduce(quick, quick=True, progress=False, only=["table1"])
+    assert {p.name: p.stat().st_mtime_ns for p in (quick / "runs").glob("*.json")} == stamps
+
+
+def test_run_config_reference_run_has_zero_error():
+    config = {"scene": "pendulum", "scene_args": {"n_bodies": 4}, "method": "dca",
+              "options": {}, "steps": 20, "every": 10}
+    r = run_config(config)
+    assert r["steps"] == 20 and r["failure"] is None and r["active_joints"] == 4
+    assert r["error"]["mean_px"]["max"] == 0 and r["error"]["differing_pixels"]["max"] == 0
+    assert r["trace"]["t"] == pytest.approx([0.01, 0.02])
+    perturbed = run_config({**config, "method": "adaptive", "options": {"threshold": 1e-2}})
+    assert perturbed["error"]["mean_px"]["max"] > 0
+    assert perturbed["error"]["differing_pixels"]["max"] > 0
+
+
+def test_report_helpers():
+    assert decreasing([1, 2, 3], [30, 20, 10])
+    assert not decreasing([1, 2, 3], [30, 35, 10])
+    assert decreasing([3, 1, 2], [10, 30, 20])                 # sorted by x first
+    assert not decreasing([1, 2], [10, 10])
+    row = lambda method, speedup, err, failure=None, **o: {    # noqa: E731
+        "config": {"method": method, "options": o}, "speedup": speedup, "failure": failure,
+        "error": {"mean_px": {"mean": err}}}
+    rows = [row("adaptive", 2.0, 0.5, threshold=1e-3), row("adaptive", 3.0, 5.0, threshold=1e-2),
+            row("view-oq", 9.0, 0.1, "diverged", threshold=1.0), row("dca", 1.0, 0.0)]
+    assert best_under(rows, 1.0) == {"adaptive": (2.0, 1e-3)}
+    assert best_under(rows, 10.0) == {"adaptive": (3.0, 1e-2)}
+
+
+def test_plan_names_every_experiment_and_quick_is_smaller():
+    full, fast = plan(False), plan(True)
+    assert tuple(full) == EXPERIMENTS == tuple(fast)
+    assert sum(map(len, fast.values())) < sum(map(len, full.values()))
+    assert np.all([c["steps"] % c["every"] == 0 for cs in full.values() for c in cs])
+
+
+def test_bad_arguments(tmp_path, capsys):
+    with pytest.raises(InputError, match="unknown experiments"):
+        reproduce(tmp_path, only=["figure10"])
+    with pytest.raises(InputError, match="unknown scene"):
+        run_config({"scene": "teapot", "scene_args": {}, "method": "dca", "options": {},
+                    "steps": 1, "every": 1})
+    assert main(["reproduce", "--out", str(tmp_path), "--jobs", "0"]) == 2
+    assert "--jobs" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["reproduce", "--only", "figure10"])

@@ -1,0 +1,319 @@
+"""Tables, figures and the Markdown report of :func:`vdad.reproduce.reproduce`.
+
+Every writer takes the experiment's rows (a run's result with its ``config``)
+and the output folder, and returns the files it wrote: Markdown and CSV tables,
+PNG figures (matplotlib, loaded here only), and ``report.md`` that sets the
+numbers beside the paper's (Kim 2008 Table 1, Figures 6, 8 and 9).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .reproduce import FAMILIES, PAPER, family, parameter, write_csv
+
+MEASURES = (("mean_px", "mean screen displacement (px)"),
+            ("differing_pixels", "differing pixels per frame"))
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(plt, fig, title, path):
+    """Title, lay out, write and close ``fig``; returns ``path``."""
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def _err(row, measure="mean_px", stat="mean"):
+    value = row["error"][measure][stat]
+    return np.nan if value is None else value
+
+
+def _num(x, digits=3):
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return "-"
+    return f"{x:.{digits}g}"
+
+
+def _failed(row):
+    return f"diverged at step {row['steps'] + 1}" if row["failure"] else ""
+
+
+def _table(header, rows):
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+
+
+# --- Table 1 ---------------------------------------------------------------------------
+
+def table1(rows):
+    """Header and rows of Table 1 (20-body pendulum), ours beside the paper's."""
+    header = ["method", "threshold", "ms/step", "speed-up over DCA", "active joints",
+              "mean px error", "differing px/frame", "paper ms", "paper active joints",
+              "paper speed-up"]
+    out = []
+    for r in rows:
+        m = r["config"]["method"]
+        paper = PAPER["table1"].get(m)
+        out.append([m, _num(parameter(r["config"])), _num(r["ms_per_step"]),
+                    _num(r["speedup"]), _num(r["active_joints"]), _num(_err(r)),
+                    _num(_err(r, "differing_pixels")),
+                    *(("-",) * 3 if paper is None else
+                      (paper[0], paper[1], _num(PAPER["table1"]["dca"][0] / paper[0])))])
+    return header, out
+
+
+def write_table1(rows, out):
+    header, body = table1(rows)
+    md = Path(out) / "table1.md"
+    md.write_text("\n".join(["# Table 1: 20-body pendulum", ""] + _table(header, body)) + "\n")
+    return [md, write_csv(Path(out) / "table1.csv", header, body)]
+
+
+# --- Figures 8 and 9 -------------------------------------------------------------------
+
+def _sweep_figure(rows, out, name, x_of, xlabel, title):
+    """Active joints and time per step against ``x_of(config)`` per view method."""
+    plt = _pyplot()
+    dca = [r for r in rows if r["config"]["method"] == "dca"]
+    header = ["method", xlabel, "active joints", "ms/step", "DCA ms/step", "speed-up",
+              "mean px error", "differing px/frame", "failure"]
+    table = []
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for m in ("view-bvh", "view-oq"):
+        mine = sorted((r for r in rows if r["config"]["method"] == m),
+                      key=lambda r: x_of(r["config"]))
+        for r in mine:
+            table.append([m, x_of(r["config"]), r["active_joints"], r["ms_per_step"],
+                          r["reference_ms_per_step"], r["speedup"], _err(r),
+                          _err(r, "differing_pixels"), _failed(r)])
+        ok = [r for r in mine if not r["failure"]]
+        bad = [r for r in mine if r["failure"]]
+        for ax, key in zip(axes, ("active_joints", "ms_per_step"), strict=True):
+            line, = ax.plot([x_of(r["config"]) for r in ok], [r[key] for r in ok], "o-",
+                            label=m)
+            if bad:
+                ax.plot([x_of(r["config"]) for r in bad], [r[key] for r in bad], "x",
+                        color=line.get_color(), label=f"{m} (diverged)")
+    for r in dca:
+        axes[1].axhline(r["ms_per_step"], color="k", ls="--", lw=1, label="full DCA")
+        axes[0].axhline(r["joints"], color="k", ls="--", lw=1, label="all joints")
+    for ax, ylabel in zip(axes, ("active joints", "ms per step"), strict=True):
+        ax.set_xscale("log")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.legend(fontsize=8)
+    png = _save(plt, fig, title, Path(out) / f"{name}.png")
+    return [png, write_csv(Path(out) / f"{name}.csv", header, table)]
+
+
+def write_figure8(rows, out):
+    return _sweep_figure(rows, out, "figure8", lambda c: c["options"]["threshold"],
+                         "error threshold", "Figure 8: 300-body pendulum against the threshold")
+
+
+def write_figure9(rows, out):
+    return _sweep_figure(rows, out, "figure9", lambda c: c["scene_args"]["camera_distance"],
+                         "viewer distance (m)",
+                         "Figure 9: 300-body pendulum against the viewer's distance")
+
+
+# --- Figure 6: 100 hanging dogs --------------------------------------------------------
+
+def dogs_table(rows):
+    header = ["method", "threshold", "ms/step", "speed-up over DCA", "active joints",
+              "active internal joints", "internal joints", "mean px error",
+              "differing px/frame"]
+    out = []
+    for r in rows:
+        n_dogs = r["config"]["scene_args"].get("n_dogs", 100)
+        out.append([r["config"]["method"], _num(parameter(r["config"])), _num(r["ms_per_step"]),
+                    _num(r["speedup"]), _num(r["active_joints"]),
+                    _num(r["active_joints"] - n_dogs), r["joints"] - n_dogs, _num(_err(r)),
+                    _num(_err(r, "differing_pixels"))])
+    return header, out
+
+
+def write_dogs(rows, out):
+    header, body = dogs_table(rows)
+    p = PAPER["dogs"]
+    md = Path(out) / "dogs.md"
+    md.write_text("\n".join(
+        ["# Figure 6: 100 hanging dogs", "",
+         f"Paper: {p['active_joints']} of {p['joints']} internal joints active on average, "
+         f"{p['ms_per_frame']} ms per frame (C++, 2008).", ""] + _table(header, body)) + "\n")
+    return [md, write_csv(Path(out) / "dogs.csv", header, body)]
+
+
+# --- speed against measured error ------------------------------------------------------
+
+def _scenes(rows):
+    return list(dict.fromkeys(r["config"]["scene"] for r in rows))
+
+
+def write_speed_vs_error(rows, out):
+    plt = _pyplot()
+    header = ["scene", "method", "family", "parameter", "steps", "ms/step", "DCA ms/step",
+              "speed-up", "active joints", "joints", "mean px (mean)", "mean px (max)",
+              "max px (max)", "differing px (mean)", "differing px (sum)", "failure"]
+    table = [[r["config"]["scene"], r["config"]["method"], family(r["config"]),
+              parameter(r["config"]), r["steps"], r["ms_per_step"],
+              r["reference_ms_per_step"], r["speedup"], r["active_joints"], r["joints"],
+              _err(r), _err(r, "mean_px", "max"), _err(r, "max_px", "max"),
+              _err(r, "differing_pixels"), _err(r, "differing_pixels", "sum"), _failed(r)]
+             for r in rows]
+    files = [write_csv(Path(out) / "speed_vs_error.csv", header, table)]
+    for scene in _scenes(rows):
+        mine = [r for r in rows if r["config"]["scene"] == scene]
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+        for ax, (measure, label) in zip(axes, MEASURES, strict=True):
+            for f in FAMILIES:
+                pts = sorted((_err(r, measure), r["speedup"]) for r in mine
+                              if family(r["config"]) == f and not r["failure"])
+                if pts:
+                    ax.plot(*zip(*pts, strict=True), "o-", label=f, ms=4)
+            bad = [r for r in mine if r["failure"]]
+            if bad:
+                ax.plot([_err(r, measure) for r in bad], [r["speedup"] for r in bad], "kx",
+                        label="diverged (until then)")
+            ax.axhline(1.0, color="k", ls="--", lw=1)
+            ax.set_xscale("symlog", linthresh=0.1 if measure == "mean_px" else 1.0)
+            ax.set_xlabel(label + ", mean over frames")
+            ax.set_ylabel("speed-up over full DCA")
+        axes[1].legend(fontsize=7)
+        files += [_save(plt, fig, f"{scene}: speed-up against measured visual error",
+                        Path(out) / f"speed_vs_error_{scene}.png"),
+                  _write_error_over_time(mine, out, scene, plt)]
+    return files
+
+
+def _write_error_over_time(rows, out, scene, plt):
+    """The error over time of each family's run of median error."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for f in FAMILIES:
+        mine = sorted((r for r in rows if family(r["config"]) == f), key=lambda r: _err(r))
+        if not mine:
+            continue
+        r = mine[len(mine) // 2]
+        for ax, (measure, label) in zip(axes, MEASURES, strict=True):
+            ax.plot(r["trace"]["t"], [np.nan if v is None else v for v in r["trace"][measure]],
+                    label=f"{f} ({_num(parameter(r['config']))})")
+            ax.set_xlabel("simulated time (s)")
+            ax.set_ylabel(label)
+    axes[1].legend(fontsize=7)
+    return _save(plt, fig, f"{scene}: visual error over time (each family's median run)",
+                 Path(out) / f"error_over_time_{scene}.png")
+
+
+def best_under(rows, limit, measure="mean_px"):
+    """{family: (speed-up, parameter)} of the fastest run of each family whose mean
+    ``measure`` stays within ``limit`` and that did not diverge."""
+    best = {}
+    for r in rows:
+        if r["failure"] or r["config"]["method"] == "dca" or not _err(r, measure) <= limit:
+            continue
+        f = family(r["config"])
+        if f not in best or r["speedup"] > best[f][0]:
+            best[f] = (r["speedup"], parameter(r["config"]))
+    return best
+
+
+def decreasing(xs, ys, slack=0.0):
+    """Whether ``ys`` never rises by more than ``slack`` (relative) as ``xs`` grows,
+    and ends below where it starts."""
+    ys = np.asarray([y for _, y in sorted(zip(xs, ys, strict=True))], float)
+    return bool(np.all(np.diff(ys) <= slack * np.abs(ys[:-1])) and ys[-1] < ys[0])
+
+
+# --- the report ------------------------------------------------------------------------
+
+def _trend_lines(rows, x_of, what):
+    lines = []
+    for m in ("view-bvh", "view-oq"):
+        mine = [r for r in rows if r["config"]["method"] == m and not r["failure"]]
+        failed = sum(1 for r in rows if r["config"]["method"] == m and r["failure"])
+        if len(mine) < 2:
+            lines.append(f"- {m}: fewer than two runs finished ({failed} diverged).")
+            continue
+        xs = [x_of(r["config"]) for r in mine]
+        a = decreasing(xs, [r["active_joints"] for r in mine], 0.02)
+        t = decreasing(xs, [r["ms_per_step"] for r in mine], 0.10)
+        lo, hi = min(mine, key=lambda r: x_of(r["config"])), max(mine, key=lambda r:
+                                                                  x_of(r["config"]))
+        lines.append(
+            f"- {m}: as {what} grows from {_num(x_of(lo['config']))} to "
+            f"{_num(x_of(hi['config']))}, active joints go {_num(lo['active_joints'])} -> "
+            f"{_num(hi['active_joints'])} ({'decreasing, as the paper' if a else 'not monotone'})"
+            f", ms per step {_num(lo['ms_per_step'])} -> {_num(hi['ms_per_step'])} "
+            f"({'decreasing' if t else 'not monotone'}); "
+            f"{failed} run(s) diverged.")
+    return lines
+
+
+def write_report(rows, out, quick):
+    out = Path(out)
+    lines = ["# vdad reproduction of Kim, Redon and Kim 2008", "",
+             ("Quick run (`vdad reproduce --quick`): short runs and thin sweeps; the trends, "
+              "not the values, are meant." if quick else
+              "Full run (`vdad reproduce`)."),
+             "Every run is measured beside a full-DCA reference from the same initial state, "
+             "forces, time step and integrator, timed in the same process; visual error: "
+             "(a) screen displacement of surface points, (b) pixels whose rendered body "
+             "differs (the paper's §3 measure).", ""]
+    if "table1" in rows:
+        header, body = table1(rows["table1"])
+        lines += ["## Table 1: 20-body pendulum", ""] + _table(header, body) + [
+            "", "The paper's pendulum has 19 joints; ours has 20 (its first joint holds it "
+            "to the world). The paper does not give its threshold: two are shown.", ""]
+    for name, x_of, what, title in (
+            ("figure8", lambda c: c["options"]["threshold"], "the threshold",
+             "Figure 8: against the error threshold"),
+            ("figure9", lambda c: c["scene_args"]["camera_distance"], "the viewer's distance",
+             "Figure 9: against the viewer's distance")):
+        if name in rows:
+            lines += [f"## {title} (300-body pendulum)", "", f"![{name}]({name}.png)", "",
+                      "The paper gives only the trend (monotone decrease); ours:", ""]
+            lines += _trend_lines(rows[name], x_of, what) + [""]
+    if "dogs" in rows:
+        header, body = dogs_table(rows["dogs"])
+        p = PAPER["dogs"]
+        lines += ["## Figure 6: 100 hanging dogs", "",
+                  f"Paper: {p['active_joints']} of {p['joints']} internal joints active, "
+                  f"{p['ms_per_frame']} ms per frame.", ""] + _table(header, body) + [""]
+    if "speed_vs_error" in rows:
+        lines += ["## Speed against measured visual error", ""]
+        sve = rows["speed_vs_error"]
+        for scene in _scenes(sve):
+            mine = [r for r in sve if r["config"]["scene"] == scene]
+            lines += [f"### {scene}", "", f"![speed]({'speed_vs_error_' + scene}.png)",
+                      f"![error over time]({'error_over_time_' + scene}.png)", ""]
+            for limit in (1.0, 10.0):
+                best = best_under(mine, limit)
+                if not best:
+                    lines.append(f"- No simplified run stays within {limit:g} px mean "
+                                 f"displacement.")
+                    continue
+                ranked = sorted(best.items(), key=lambda kv: -kv[1][0])
+                lines.append(f"- Within {limit:g} px mean displacement, fastest: " + "; ".join(
+                    f"{f} {s:.2f}x (at {_num(p)})" for f, (s, p) in ranked) + ".")
+            failed = [r for r in mine if r["failure"]]
+            if failed:
+                lines.append("- Diverged: " + "; ".join(
+                    f"{family(r['config'])} at {_num(parameter(r['config']))} "
+                    f"({_failed(r)})" for r in failed) + ".")
+            lines.append("")
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return [path]

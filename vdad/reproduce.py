@@ -1,0 +1,188 @@
+"""Reproduction of Kim 2008 (Table 1, Figures 6, 8 and 9) and speed against
+measured visual error (``docs/reproduction.md``).
+
+:func:`plan` lists the runs of every experiment as configurations (plain dicts:
+scene, scene arguments, method, method options, steps, frames); :func:`run_config`
+runs one of them beside its full-DCA reference (:func:`vdad.visual_error.measure`)
+and returns its timing, active joints and visual error; :func:`reproduce` runs
+them all as a resumable sweep (:func:`vdad.sweep.run_sweep`) and writes the
+tables, figures and the report into one folder.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+# The paper's numbers (Kim 2008 Table 1, Figure 6; 2.26 GHz Pentium M, C++)
+PAPER = {
+    "table1": {"dca": (0.218, 19), "view-bvh": (0.136, 10), "view-oq": (0.108, 8)},
+    "dogs": {"active_joints": 493, "joints": 1500, "ms_per_frame": 14.0},
+}
+EXPERIMENTS = ("table1", "figure8", "figure9", "dogs", "speed_vs_error")
+# the 300-body pendulum of Figures 8-9 and the speed study: beads (radius half a link)
+# seen at 640 x 480, so that links cover pixels when all 300 are in view
+PENDULUM300 = {"n_bodies": 300, "radius": 0.05, "resolution": [640, 480]}
+FAMILIES = ("adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb", "view-oq",
+            "lod-distance", "sleeping")
+
+
+def _config(scene, args, method, options, steps, every):
+    return {"scene": scene, "scene_args": args, "method": method, "options": options,
+            "steps": steps, "every": every}
+
+
+def _view(method, threshold, **extra):
+    """Options of a view-dependent run (merged counting: the same counts, faster)."""
+    options = {"threshold": threshold, **extra}
+    if method == "view-oq":
+        options["counting"] = "merged"
+    return options
+
+
+def _family_configs(scene, args, steps, every, values):
+    """One run per value of every method family of the speed study, and the DCA."""
+    out = [_config(scene, args, "dca", {}, steps, every)]
+    for t in values["adaptive"]:
+        out.append(_config(scene, args, "adaptive", {"threshold": t}, steps, every))
+    for volume in ("sphere", "obb", "aabb"):
+        for t in values["view"]:
+            out.append(_config(scene, args, "view-bvh", _view("view-bvh", t, volume=volume),
+                               steps, every))
+    for t in values["view"]:
+        out.append(_config(scene, args, "view-oq", _view("view-oq", t), steps, every))
+    for d in values["distance"]:
+        out.append(_config(scene, args, "lod-distance", {"distance": d}, steps, every))
+    for s in values["sleep"]:
+        out.append(_config(scene, args, "sleeping", {"sleep_speed": s}, steps, every))
+    return out
+
+
+def plan(quick=False) -> dict:
+    """The configurations of every experiment: {experiment: [config, ...]}.
+    ``quick`` shortens the runs and thins the sweeps (minutes on two cores)."""
+    q = bool(quick)
+    p_steps, p_every = (200, 20) if q else (600, 20)
+    table1 = [_config("pendulum", {"n_bodies": 20}, "dca", {}, 200 if q else 1000, 10)]
+    for t in (0.01, 0.03):
+        for m in ("adaptive", "view-bvh", "view-oq"):
+            options = {"threshold": t * 1e-3} if m == "adaptive" else _view(m, t)
+            table1.append(_config("pendulum", {"n_bodies": 20}, m, options,
+                                  200 if q else 1000, 10))
+    thresholds = [1e-5, 1e-3, 1e-1] if q else [1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0]
+    figure8 = [_config("pendulum", PENDULUM300, "dca", {}, p_steps, p_every)] + [
+        _config("pendulum", PENDULUM300, m, _view(m, t), p_steps, p_every)
+        for m in ("view-bvh", "view-oq") for t in thresholds]
+    distances = [33.0, 120.0, 480.0] if q else [15.0, 33.0, 60.0, 120.0, 240.0, 480.0]
+    figure9 = [_config("pendulum", {**PENDULUM300, "camera_distance": d}, m, _view(m, 1e-5),
+                       p_steps, p_every) for m in ("view-bvh", "view-oq") for d in distances]
+    d_steps = 30 if q else 300
+    dogs = [_config("hanging_dogs", {}, "dca", {}, d_steps, 10)] + [
+        _config("hanging_dogs", {}, m, _view(m, 0.01), d_steps, 10)
+        for m in ("view-bvh", "view-oq")]
+    if q:
+        sve = (_family_configs("pendulum", PENDULUM300, p_steps, p_every, {
+                   "adaptive": [1e-5, 1e-2], "view": [1e-3], "distance": [30.0],
+                   "sleep": [0.5]})
+               + _family_configs("hanging_dogs", {"n_dogs": 16, "columns": 4}, 40, 10, {
+                   "adaptive": [1e-5, 1e-2], "view": [1e-2], "distance": [3.5],
+                   "sleep": [0.5]})
+               + _family_configs("falling_character", {}, 300, 25, {
+                   "adaptive": [1e-6, 1e-3], "view": [3e-3], "distance": [4.0],
+                   "sleep": [0.2]}))
+    else:
+        sve = (_family_configs("pendulum", PENDULUM300, p_steps, p_every, {
+                   "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-5, 1e-3, 1e-1],
+                   "distance": [30.0, 50.0], "sleep": [0.05, 0.5, 2.0]})
+               + _family_configs("hanging_dogs", {}, 200, 10, {
+                   "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-3, 1e-2, 1e-1],
+                   "distance": [3.5, 4.5, 6.0], "sleep": [0.05, 0.5, 2.0]})
+               + _family_configs("falling_character", {}, 2500, 25, {
+                   "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-3, 3e-3, 1e-2],
+                   "distance": [4.0, 6.0, 8.0], "sleep": [0.05, 0.2, 1.0]}))
+    return {"table1": table1, "figure8": figure8, "figure9": figure9, "dogs": dogs,
+            "speed_vs_error": sve}
+
+
+def family(config) -> str:
+    """The method family of a configuration in the speed study's legend."""
+    if config["method"] == "view-bvh":
+        return f"view-bvh {config['options'].get('volume', 'sphere')}"
+    return config["method"]
+
+
+def parameter(config):
+    """The swept value of a configuration: threshold, distance or sleep speed."""
+    o = config["options"]
+    return o.get("threshold", o.get("distance", o.get("sleep_speed")))
+
+
+def run_config(config) -> dict:
+    """One run of the plan beside its full-DCA reference, from the scene's initial
+    state with the same forces, time step and integrator (a sweep's function).
+
+    Returns ``ms_per_step`` and ``reference_ms_per_step`` (timed in the same
+    process), ``speedup``, mean ``active_joints`` of ``joints``, ``steps``,
+    ``failure`` (the message if the run diverged; its numbers then cover the
+    steps before), ``error`` (:meth:`~vdad.visual_error.ErrorTrace.summary`) and
+    the per-frame ``trace``."""
+    from .scenes import SCENES
+    from .visual_error import measure
+
+    if config["scene"] not in SCENES:
+        raise InputError(f"unknown scene {config['scene']!r}; choose one of {sorted(SCENES)}")
+    args = dict(config["scene_args"])
+    if "resolution" in args:
+        args["resolution"] = tuple(args["resolution"])
+    scene = SCENES[config["scene"]](**args)
+    sim = scene.simulator(method=config["method"], **config["options"])
+    trace, info = measure(sim, config["steps"], config["every"])
+    finite = {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+              for k, v in info.items()}
+    speedup = info["reference_ms_per_step"] / info["ms_per_step"] if info["steps"] else None
+    return {**finite, "joints": scene.model.nb, "speedup": speedup, "error": trace.summary(),
+            "trace": {k: [None if not np.isfinite(x) else float(x) for x in getattr(trace, k)]
+                      for k in ("t", "mean_px", "max_px", "differing_pixels")}}
+
+
+def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None) -> list:
+    """Run the experiments ``only`` (default: all of :data:`EXPERIMENTS`) as one
+    resumable sweep stored in ``out/runs`` (a killed run resumes), then write the
+    tables, figures and ``report.md`` into ``out``. Returns the files written."""
+    from .sweep import ResultStore, run_sweep
+
+    only = list(EXPERIMENTS) if only is None else list(only)
+    unknown = sorted(set(only) - set(EXPERIMENTS))
+    if unknown:
+        raise InputError(f"unknown experiments {unknown}; choose from {EXPERIMENTS}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    experiments = {k: v for k, v in plan(quick).items() if k in only}
+    configs = [c for cs in experiments.values() for c in cs]
+    report = run_sweep(run_config, configs, ResultStore(out / "runs"), jobs=jobs,
+                       scheduler=scheduler, progress=progress, desc="vdad reproduce")
+    results = {json.dumps(c, sort_keys=True): r
+               for c, r in zip(configs, report.results, strict=True)}
+    rows = {name: [dict(config=c, **results[json.dumps(c, sort_keys=True)]) for c in cs]
+            for name, cs in experiments.items()}
+    from . import report as writers
+
+    files = []
+    for name in experiments:
+        files += getattr(writers, f"write_{name}")(rows[name], out)
+    files += writers.write_report(rows, out, quick)
+    return files
+
+
+def write_csv(path, header, rows) -> Path:
+    """A CSV file with ``header`` and ``rows`` (lists); returns its path."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
+    return Path(path)
