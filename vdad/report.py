@@ -110,8 +110,11 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
     for r in dca:
         axes[1].axhline(r["ms_per_step"], color="k", ls="--", lw=1, label="full DCA")
         axes[0].axhline(r["joints"], color="k", ls="--", lw=1, label="all joints")
+    xs = sorted({x_of(r["config"]) for r in rows if r["config"]["method"] != "dca"})
     for ax, ylabel in zip(axes, ("active joints", "ms per step"), strict=True):
         ax.set_xscale("log")
+        ax.set_xticks(xs, [f"{x:g}" for x in xs])
+        ax.minorticks_off()
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.legend(fontsize=8)
@@ -180,16 +183,18 @@ def write_speed_vs_error(rows, out):
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
         for ax, (measure, label) in zip(axes, MEASURES, strict=True):
             for f in FAMILIES:
-                pts = sorted((_err(r, measure), r["speedup"]) for r in mine
-                              if family(r["config"]) == f and not r["failure"])
-                if pts:
-                    ax.plot(*zip(*pts, strict=True), "o-", label=f, ms=4)
+                runs = sorted((r for r in mine if family(r["config"]) == f
+                               and not r["failure"]), key=lambda r: parameter(r["config"]))
+                if runs:                                # joined along the swept parameter
+                    ax.plot([_err(r, measure) for r in runs], [r["speedup"] for r in runs],
+                            "o-", label=f, ms=4)
             bad = [r for r in mine if r["failure"]]
             if bad:
                 ax.plot([_err(r, measure) for r in bad], [r["speedup"] for r in bad], "kx",
                         label="diverged (until then)")
             ax.axhline(1.0, color="k", ls="--", lw=1)
             ax.set_xscale("symlog", linthresh=0.1 if measure == "mean_px" else 1.0)
+            ax.set_xlim(left=0)
             ax.set_xlabel(label + ", mean over frames")
             ax.set_ylabel("speed-up over full DCA")
         axes[1].legend(fontsize=7)
