@@ -387,19 +387,19 @@ def test_node_visits_bound(n):
 
 
 def test_threshold_monotone_on_300_pendulum():
-    """300-link pendulum, 150 steps: fewer active joints and less time per step as
-    the threshold grows over eight decades (Figure 8's trend). Measured (2-core
-    VM): mean active 38.1, 28.2, 13.8; median step 3.39, 3.31, 3.01 ms (ratio 0.89).
-    Time is the median over steps 2..150 of the summed phase times."""
+    """300-link pendulum, 150 steps: fewer active joints and less work per step as
+    the threshold grows over eight decades (Figure 8's trend). Work is counted,
+    not timed (timings belong to benchmarks): nodes visited by the passes per
+    step. Measured: mean active 39.6, 28.7, 16.7; node visits 75.6, 53.8, 29.6."""
     scene = pendulum(300)
-    active, seconds = [], []
+    active, visits = [], []
     for threshold in (1e-12, 1e-8, 1e-4):
         sim = scene.simulator(method="adaptive", threshold=threshold).step(150)
         active.append(np.mean([h.active_joints for h in sim.history]))
-        seconds.append(np.median([sum(h.times.values()) for h in sim.history[1:]]))
+        visits.append(np.mean([h.node_visits for h in sim.history[1:]]))
         assert np.abs(sim.q - scene.q0).max() > 0.01           # it swings
     assert active[0] > active[1] + 3 > active[2] + 6, active
-    assert seconds[2] < 0.95 * seconds[0], seconds
+    assert visits[0] > visits[1] > visits[2] and visits[2] < 0.5 * visits[0], visits
 
 
 # --- 7. input errors --------------------------------------------------------------------
