@@ -12,7 +12,8 @@ from vdad.report import best_under, decreasing
 from vdad.reproduce import EXPERIMENTS, plan, reproduce, run_config
 
 FILES = ["table1.md", "table1.csv", "figure8.png", "figure8.csv", "figure9.png",
-         "figure9.csv", "dogs.md", "dogs.csv", "speed_vs_error.csv", "report.md"] + [
+         "figure9.csv", "dogs.md", "dogs.csv", "speed_vs_error.csv", "error_over_time.csv",
+         "report.md"] + [
     f"{kind}_{scene}.png" for kind in ("speed_vs_error", "error_over_time")
     for scene in ("pendulum", "hanging_dogs", "falling_character")]
 
@@ -76,6 +77,11 @@ def test_speed_study_covers_every_family_and_measures_error(quick):
         dca = [r for r in mine if r["family"] == "dca"][0]
         assert float(dca["mean px (mean)"]) == 0 and float(dca["differing px (mean)"]) == 0
         assert any(float(r["mean px (mean)"]) > 0 for r in mine if not r["failure"])
+    frames = _rows(quick / "error_over_time.csv")
+    assert {r["family"] for r in frames} >= {"dca", "view-oq", "lod-distance"}
+    for r in frames:
+        if r["family"] == "dca":
+            assert float(r["mean_px"]) == 0 and float(r["differing_pixels"]) == 0
 
 
 def test_a_second_run_recomputes_nothing(quick):

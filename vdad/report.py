@@ -14,6 +14,7 @@ import numpy as np
 
 from .reproduce import FAMILIES, PAPER, family, parameter, write_csv
 
+TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
 MEASURES = (("mean_px", "mean screen displacement (px)"),
             ("differing_pixels", "differing pixels per frame"))
 
@@ -170,14 +171,20 @@ def write_speed_vs_error(rows, out):
     plt = _pyplot()
     header = ["scene", "method", "family", "parameter", "steps", "ms/step", "DCA ms/step",
               "speed-up", "active joints", "joints", "mean px (mean)", "mean px (max)",
-              "max px (max)", "differing px (mean)", "differing px (sum)", "failure"]
+              "mean px (sum)", "max px (max)", "differing px (mean)", "differing px (sum)",
+              "failure"]
     table = [[r["config"]["scene"], r["config"]["method"], family(r["config"]),
               parameter(r["config"]), r["steps"], r["ms_per_step"],
               r["reference_ms_per_step"], r["speedup"], r["active_joints"], r["joints"],
-              _err(r), _err(r, "mean_px", "max"), _err(r, "max_px", "max"),
+              _err(r), _err(r, "mean_px", "max"), _err(r, "mean_px", "sum"),
+              _err(r, "max_px", "max"),
               _err(r, "differing_pixels"), _err(r, "differing_pixels", "sum"), _failed(r)]
              for r in rows]
-    files = [write_csv(Path(out) / "speed_vs_error.csv", header, table)]
+    frames = [[r["config"]["scene"], family(r["config"]), parameter(r["config"]), *values]
+              for r in rows for values in zip(*(r["trace"][k] for k in TRACE), strict=True)]
+    files = [write_csv(Path(out) / "speed_vs_error.csv", header, table),
+             write_csv(Path(out) / "error_over_time.csv", ["scene", "family", "parameter",
+                                                           *TRACE], frames)]
     for scene in _scenes(rows):
         mine = [r for r in rows if r["config"]["scene"] == scene]
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))

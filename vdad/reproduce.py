@@ -132,7 +132,7 @@ def run_config(config) -> dict:
     steps before), ``error`` (:meth:`~vdad.visual_error.ErrorTrace.summary`) and
     the per-frame ``trace``."""
     from .scenes import SCENES
-    from .visual_error import measure
+    from .visual_error import MEASURES, measure
 
     if config["scene"] not in SCENES:
         raise InputError(f"unknown scene {config['scene']!r}; choose one of {sorted(SCENES)}")
@@ -147,7 +147,7 @@ def run_config(config) -> dict:
     speedup = info["reference_ms_per_step"] / info["ms_per_step"] if info["steps"] else None
     return {**finite, "joints": scene.model.nb, "speedup": speedup, "error": trace.summary(),
             "trace": {k: [None if not np.isfinite(x) else float(x) for x in getattr(trace, k)]
-                      for k in ("t", "mean_px", "max_px", "differing_pixels")}}
+                      for k in ("t", *MEASURES)}}
 
 
 def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None) -> list:
