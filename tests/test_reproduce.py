@@ -123,6 +123,17 @@ def test_plan_names_every_experiment_and_quick_is_smaller():
     assert np.all([c["steps"] % c["every"] == 0 for cs in full.values() for c in cs])
 
 
+def test_missing_extras_are_named_before_any_run(tmp_path, monkeypatch):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "matplotlib" else find_spec(name, *a))
+    with pytest.raises(InputError, match=r"needs matplotlib: pip install \"vdad\[render,plots\]"):
+        reproduce(tmp_path, quick=True, progress=False)
+    assert not (tmp_path / "runs").exists()
+
+
 def test_bad_arguments(tmp_path, capsys):
     with pytest.raises(InputError, match="unknown experiments"):
         reproduce(tmp_path, only=["figure10"])

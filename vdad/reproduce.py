@@ -150,6 +150,20 @@ def run_config(config) -> dict:
                       for k in ("t", *MEASURES)}}
 
 
+def _check_extras():
+    """The render and plots extras, before any run: an :class:`InputError` naming
+    the missing modules, or a RenderError with the hint when EGL is unavailable."""
+    from importlib.util import find_spec
+
+    missing = [m for m in ("trimesh", "pyrender", "matplotlib") if find_spec(m) is None]
+    if missing:
+        raise InputError(f"vdad reproduce needs {', '.join(missing)}: pip install "
+                         f"\"vdad[render,plots]\"")
+    from .render.context import make_current
+
+    make_current()
+
+
 def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None) -> list:
     """Run the experiments ``only`` (default: all of :data:`EXPERIMENTS`) as one
     resumable sweep stored in ``out/runs`` (a killed run resumes), then write the
@@ -160,6 +174,7 @@ def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None
     unknown = sorted(set(only) - set(EXPERIMENTS))
     if unknown:
         raise InputError(f"unknown experiments {unknown}; choose from {EXPERIMENTS}")
+    _check_extras()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     experiments = {k: v for k, v in plan(quick).items() if k in only}
