@@ -20,22 +20,15 @@ from __future__ import annotations
 import numpy as np
 
 from .assembly import AssemblyTree
-from .camera import camera_at
+from .camera import camera_at, check_path
 from .dynamics import check_real
-from .errors import InputError
+from .kinematics import plan
 
 
 def articulated_bodies(model) -> np.ndarray:
     """Root joint (nb,) of each body's articulated body: the joint of the tree of
     bodies it belongs to that joins that tree to the world."""
-    root = np.arange(model.nb)
-    parent = np.asarray(model.parent)
-    up = np.where(parent < 0, root, parent)
-    while True:                                    # pointer jumping, log(depth) rounds
-        nxt = up[up]
-        if np.array_equal(nxt, up):
-            return up
-        up = nxt
+    return plan(model).root_of
 
 
 def root_last_tree(model) -> AssemblyTree:
@@ -79,10 +72,7 @@ class DistanceLOD(_Switch):
 
     def __init__(self, tree, camera, distance):
         super().__init__(tree)
-        if not callable(camera):
-            raise InputError(f"camera must be a vdad.camera.Camera or a callable t -> Camera, "
-                             f"got {type(camera).__name__}")
-        self.path = camera
+        self.path = check_path(camera)
         self.distance = check_real("distance", distance, positive=True)
 
     def __call__(self, t, q, adaptive):
@@ -97,16 +87,16 @@ class Sleeping(_Switch):
 
     A body falls asleep when its speed, ``sqrt(V)`` of its top node (theory
     (T15): rad/s on hinges, link lengths per second on slides), has stayed below
-    ``speed`` for ``duration`` seconds; then all its joints are locked (a
+    ``sleep_speed`` for ``sleep_time`` seconds; then all its joints are locked (a
     floating base still moves as one rigid body). It wakes when a released joint
-    would accelerate faster than ``speed / duration`` (the look-ahead at its
-    front: a force that would wake it within ``duration``), or when its floating
-    base moves faster than ``speed``."""
+    would accelerate faster than ``sleep_speed / sleep_time`` (the look-ahead at
+    its front: a force that would wake it within ``sleep_time``), or when its
+    floating base moves faster than ``sleep_speed``."""
 
-    def __init__(self, tree, speed=0.05, duration=0.5):
+    def __init__(self, tree, sleep_speed=0.05, sleep_time=0.5):
         super().__init__(tree)
-        self.speed = check_real("sleep_speed", speed, positive=True)
-        self.duration = check_real("sleep_time", duration, positive=True)
+        self.speed = check_real("sleep_speed", sleep_speed, positive=True)
+        self.duration = check_real("sleep_time", sleep_time, positive=True)
         c = len(self.roots)
         self.asleep = np.zeros(c, bool)
         self.quiet_since = np.full(c, np.nan)          # time each became slow (NaN: moving)

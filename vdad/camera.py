@@ -209,6 +209,28 @@ class Keyframes:
                        up=tuple(v[6:9]), yfov=float(v[9]))
 
 
+def check_path(camera):
+    """``camera`` checked to be a :class:`Camera` or a callable ``t -> Camera``."""
+    if not callable(camera):
+        raise InputError(f"camera must be a vdad.camera.Camera or a callable t -> Camera, "
+                         f"got {type(camera).__name__}")
+    return camera
+
+
+def check_resolution(resolution):
+    """``resolution`` (width, height) in pixels as two ints, or None (the camera's)."""
+    if resolution is None:
+        return None
+    try:
+        w, h = (int(x) for x in resolution)
+    except (TypeError, ValueError):
+        raise InputError(f"resolution must be (width, height) in pixels, got "
+                         f"{resolution!r}") from None
+    if w < 1 or h < 1 or (w, h) != tuple(resolution):
+        raise InputError(f"resolution must be two positive whole numbers, got {resolution!r}")
+    return w, h
+
+
 def camera_at(path, t) -> Camera:
     """The camera of ``path`` (a :class:`Camera` or a callable ``t -> Camera``) at
     time ``t``, checked."""

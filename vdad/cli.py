@@ -77,7 +77,9 @@ def _method_options(parser):
     parser.add_argument("--method", choices=METHODS, default="dca",
                         help="dynamics method: exact DCA, adaptive dynamics, or view-dependent "
                         "adaptive dynamics with coverage from bounding volumes (view-bvh) or "
-                        "rendered occlusion counts (view-oq, needs EGL) (default dca)")
+                        "rendered occlusion counts (view-oq, needs EGL), or a game-engine "
+                        "baseline: whole bodies rigid beyond --distance (lod-distance) or "
+                        "asleep when slow (sleeping) (default dca)")
     parser.add_argument("--integrator", choices=sorted(INTEGRATORS), default="semi-implicit",
                         help="time integrator (default semi-implicit Euler)")
     adaptive = parser.add_argument_group(

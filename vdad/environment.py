@@ -44,6 +44,15 @@ class Environment:
         return trimesh.util.concatenate([g.to_trimesh() for g in self.geoms])
 
 
+def check_environment(environment) -> Environment:
+    """``environment`` checked: an :class:`Environment`, or None for an empty one."""
+    environment = Environment() if environment is None else environment
+    if not isinstance(environment, Environment):
+        raise InputError(f"environment must be a vdad.environment.Environment or None, got "
+                         f"{type(environment).__name__}")
+    return environment
+
+
 def box(center, half_extents, rotation=None, rgba=(0.6, 0.6, 0.65, 1.0)) -> Environment:
     """A box with ``half_extents`` (3,) centred at ``center`` (3,), rotated by
     ``rotation`` (3x3 matrix or quaternion w, x, y, z)."""

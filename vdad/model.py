@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import joints as J
-from .errors import ModelError
+from .errors import InputError, ModelError
 from .spatial import quat_normalize, quat_to_rot
 
 
@@ -350,3 +350,10 @@ class Model:
     def __repr__(self):
         return (f"Model({self.name!r}, bodies={self.nb}, nq={self.nq}, nv={self.nv}, "
                 f"roots={int(np.sum(self.parent < 0))})")
+
+
+def check_model(model):
+    """``model`` checked to be a :class:`Model`."""
+    if not isinstance(model, Model):
+        raise InputError(f"model must be a vdad.Model, got {type(model).__name__}")
+    return model

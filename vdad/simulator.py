@@ -117,10 +117,9 @@ class Simulator:
                     self.tree, camera, environment, method=view.get("counting", "queries"),
                     resolution=view.get("resolution"))
             elif method == "lod-distance":
-                adaptive_options["coverage"] = DistanceLOD(self.tree, camera, view["distance"])
+                adaptive_options["coverage"] = DistanceLOD(self.tree, camera, **view)
             elif method == "sleeping":
-                adaptive_options["coverage"] = Sleeping(
-                    self.tree, view.get("sleep_speed", 0.05), view.get("sleep_time", 0.5))
+                adaptive_options["coverage"] = Sleeping(self.tree, **view)
             self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
 
     def body_poses(self, bodies=None):

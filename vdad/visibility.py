@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bounding import Volumes, areas, body_volumes, check_volume, merge, place
-from .camera import camera_at
+from .camera import camera_at, check_path, check_resolution
 from .errors import InputError
 from .kinematics import world_poses
 
@@ -41,29 +41,13 @@ def sum_up(tree, per_body):
     return N
 
 
-def _check_resolution(resolution):
-    if resolution is None:
-        return None
-    try:
-        w, h = (int(x) for x in resolution)
-    except (TypeError, ValueError):
-        raise InputError(f"resolution must be (width, height) in pixels, got "
-                         f"{resolution!r}") from None
-    if w < 1 or h < 1 or (w, h) != tuple(resolution):
-        raise InputError(f"resolution must be two positive whole numbers, got {resolution!r}")
-    return w, h
-
-
 class _Coverage:
     """A camera path and the counting resolution (default: the camera's own)."""
 
     def __init__(self, tree, camera, resolution=None):
-        if not callable(camera):
-            raise InputError(f"camera must be a vdad.camera.Camera or a callable t -> Camera, "
-                             f"got {type(camera).__name__}")
         self.tree, self.model = tree, tree.model
-        self.path = camera
-        self.resolution = _check_resolution(resolution)
+        self.path = check_path(camera)
+        self.resolution = check_resolution(resolution)
 
     def camera(self, t):
         """The camera at time ``t`` at the counting resolution."""

@@ -26,13 +26,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Camera, camera_at
+from .camera import Camera, camera_at, check_path, check_resolution
 from .dynamics import check_count, check_real, check_vector
-from .environment import Environment
+from .environment import check_environment
 from .errors import InputError, SimulationError
 from .kinematics import world_poses
-from .model import Model
+from .model import check_model
 from .simulator import Simulator
+from .spatial import mv
 
 MEASURES = ("mean_px", "max_px", "differing_pixels")
 
@@ -40,11 +41,6 @@ MEASURES = ("mean_px", "max_px", "differing_pixels")
 def _check_simulator(sim):
     if not isinstance(sim, Simulator):
         raise InputError(f"sim must be a vdad.Simulator, got {type(sim).__name__}")
-
-
-def _check_model(model):
-    if not isinstance(model, Model):
-        raise InputError(f"model must be a vdad.Model, got {type(model).__name__}")
 
 
 def reference_simulator(sim) -> Simulator:
@@ -134,9 +130,8 @@ def record(sim, steps, every=1, progress=False) -> Trajectory:
 def poses(model, q):
     """Kim 2008 §3.1: where the bodies are drawn in configuration ``q`` (nq,):
     world rotations ``R`` (nb, 3, 3) and positions ``p`` (nb, 3) of every body."""
-    _check_model(model)
-    q = check_vector("q", q, model.nq)
-    return world_poses(model, q)
+    check_model(model)
+    return world_poses(model, check_vector("q", q, model.nq))
 
 
 def surface_points(model, per_body=64, sections=8):
@@ -147,7 +142,7 @@ def surface_points(model, per_body=64, sections=8):
 
     Returns ``body`` (P,) int64, the body of each point, and ``local`` (P, 3), its
     position in that body's frame."""
-    _check_model(model)
+    check_model(model)
     per_body = check_count("per_body", per_body)
     sections = check_count("sections", sections, minimum=3)
     meshes = {}                     # id(geom) -> vertices, for geoms shared by bodies
@@ -223,19 +218,9 @@ class VisualError:
 
     def __init__(self, model, camera, environment=None, resolution=None, per_body=64,
                  pixels=True):
-        _check_model(model)
-        if not (isinstance(camera, Camera) or callable(camera)):
-            raise InputError(f"camera must be a vdad.camera.Camera or a callable t -> Camera, "
-                             f"got {type(camera).__name__}")
-        if not (environment is None or isinstance(environment, Environment)):
-            raise InputError(f"environment must be a vdad.environment.Environment or None, got "
-                             f"{type(environment).__name__}")
-        if resolution is not None:
-            if np.ndim(resolution) != 1 or len(resolution) != 2:
-                raise InputError(f"resolution must be (width, height), got {resolution!r}")
-            resolution = tuple(check_count("resolution", n) for n in resolution)
-        self.model, self.camera, self.environment = model, camera, environment
-        self.resolution, self.pixels = resolution, bool(pixels)
+        self.model, self.camera = check_model(model), check_path(camera)
+        self.environment = check_environment(environment)
+        self.resolution, self.pixels = check_resolution(resolution), bool(pixels)
         self.body, self.local = surface_points(model, per_body)    # (P,), (P, 3)
         self._counter = None
 
@@ -263,10 +248,10 @@ class VisualError:
         q_ref = check_vector("q_ref", q_ref, self.model.nq)
         q = check_vector("q", q, self.model.nq)
         camera = self._camera(t)
-        (R_ref, p_ref), (R, p) = poses(self.model, q_ref), poses(self.model, q)
+        (R_ref, p_ref), (R, p) = world_poses(self.model, q_ref), world_poses(self.model, q)
         b, x = self.body, self.local
-        X_ref = np.einsum("pij,pj->pi", R_ref[b], x) + p_ref[b]            # (P, 3)
-        X = np.einsum("pij,pj->pi", R[b], x) + p[b]                        # (P, 3)
+        X_ref = p_ref[b] + mv(R_ref[b], x)                                  # (P, 3)
+        X = p[b] + mv(R[b], x)                                              # (P, 3)
         mean_px, max_px = screen_displacement(camera, X_ref, X)
         differing = None
         if self.pixels:

@@ -32,9 +32,9 @@ import weakref
 
 import numpy as np
 
-from ..environment import Environment
+from ..environment import check_environment
 from ..errors import InputError, RenderError
-from ..model import Model
+from ..model import check_model
 from . import context
 
 METHODS = ("merged", "queries")
@@ -131,15 +131,11 @@ class PixelCounter:
 
     def __init__(self, model, environment=None, width=320, height=240, method="merged",
                  sections=8):
-        if not isinstance(model, Model):
-            raise InputError(f"model must be a vdad.Model, got {type(model).__name__}")
+        check_model(model)
         if method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {method!r}")
         self.width, self.height = _positive("width", width), _positive("height", height)
-        environment = Environment() if environment is None else environment
-        if not isinstance(environment, Environment):
-            raise InputError(f"environment must be a vdad.environment.Environment or None, got "
-                             f"{type(environment).__name__}")
+        environment = check_environment(environment)
         self.model, self.environment, self.method = model, environment, method
         self.nb = model.nb
         if not (isinstance(sections, (int, np.integer)) and sections >= 3):

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import camera_at
-from ..environment import Environment
+from ..environment import check_environment
 from ..errors import InputError, RenderError
-from ..model import Model
+from ..model import check_model
 from . import context
 
 COLORS = ("group", "body", "geom")
@@ -162,12 +162,8 @@ class SceneRenderer:
 
     def __init__(self, model, environment=None, width=640, height=480, sections=16,
                  marker_radius=None):
-        if not isinstance(model, Model):
-            raise InputError(f"model must be a vdad.Model, got {type(model).__name__}")
-        environment = Environment() if environment is None else environment
-        if not isinstance(environment, Environment):
-            raise InputError(f"environment must be a vdad.environment.Environment or None, got "
-                             f"{type(environment).__name__}")
+        check_model(model)
+        environment = check_environment(environment)
         self.width, self.height = _whole("width", width), _whole("height", height)
         sections = _whole("sections", sections, 3)
         self.model, self.environment, self.nb = model, environment, model.nb
