@@ -8,15 +8,25 @@ numbers beside the paper's (Kim 2008 Table 1, Figures 6, 8 and 9).
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import numpy as np
 
-from .reproduce import FAMILIES, PAPER, family, parameter, write_csv
+from .reproduce import FAMILIES, PAPER, family, parameter
 
 TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
 MEASURES = (("mean_px", "mean screen displacement (px)"),
             ("differing_pixels", "differing pixels per frame"))
+
+
+def write_csv(path, header, rows) -> Path:
+    """A CSV file with ``header`` and ``rows`` (lists); returns its path."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
+    return Path(path)
 
 
 def _pyplot():

@@ -11,8 +11,6 @@ tables, figures and the report into one folder.
 
 from __future__ import annotations
 
-import csv
-import json
 from pathlib import Path
 
 import numpy as np
@@ -181,9 +179,8 @@ def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None
     configs = [c for cs in experiments.values() for c in cs]
     report = run_sweep(run_config, configs, ResultStore(out / "runs"), jobs=jobs,
                        scheduler=scheduler, progress=progress, desc="vdad reproduce")
-    results = {json.dumps(c, sort_keys=True): r
-               for c, r in zip(configs, report.results, strict=True)}
-    rows = {name: [dict(config=c, **results[json.dumps(c, sort_keys=True)]) for c in cs]
+    results = iter(report.results)                    # in the order of configs
+    rows = {name: [dict(config=c, **next(results)) for c in cs]
             for name, cs in experiments.items()}
     from . import report as writers
 
@@ -192,12 +189,3 @@ def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None
         files += getattr(writers, f"write_{name}")(rows[name], out)
     files += writers.write_report(rows, out, quick)
     return files
-
-
-def write_csv(path, header, rows) -> Path:
-    """A CSV file with ``header`` and ``rows`` (lists); returns its path."""
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        w.writerows(rows)
-    return Path(path)
