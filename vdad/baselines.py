@@ -65,7 +65,8 @@ class _Switch:
 
 
 class DistanceLOD(_Switch):
-    """Whole articulated bodies rigid beyond ``distance`` (m) from the viewer: each
+    """``docs/reproduction.md``, baselines: a game engine's distance level of detail.
+    Whole articulated bodies rigid beyond ``distance`` (m) from the viewer: each
     body's distance is its root body's (the body on the joint to the world) from
     the position of ``camera`` (a :class:`~vdad.camera.Camera` or a path ``t ->
     Camera``) at time ``t``; its joint to the world stays articulated."""
@@ -83,7 +84,8 @@ class DistanceLOD(_Switch):
 
 
 class Sleeping(_Switch):
-    """Articulated bodies asleep after moving slowly (a game engine's sleeping).
+    """``docs/reproduction.md``, baselines: articulated bodies asleep after moving
+    slowly (a game engine's sleeping).
 
     A body falls asleep when its speed, ``sqrt(V)`` of its top node (theory
     (T15): rad/s on hinges, link lengths per second on slides), has stayed below

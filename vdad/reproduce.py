@@ -62,7 +62,9 @@ def _family_configs(scene, args, steps, every, values):
 
 
 def plan(quick=False) -> dict:
-    """The configurations of every experiment: {experiment: [config, ...]}.
+    """Kim 2008 Table 1, Figures 6, 8, 9 and the speed study of
+    ``docs/reproduction.md``: the configurations of every experiment,
+    {experiment: [config, ...]}.
     ``quick`` shortens the runs and thins the sweeps (minutes on two cores)."""
     q = bool(quick)
     p_steps, p_every = (200, 20) if q else (600, 20)
@@ -121,8 +123,9 @@ def parameter(config):
 
 
 def run_config(config) -> dict:
-    """One run of the plan beside its full-DCA reference, from the scene's initial
-    state with the same forces, time step and integrator (a sweep's function).
+    """Kim 2008 §3.1, measured: one run of the plan beside its full-DCA reference,
+    from the scene's initial state with the same forces, time step and integrator
+    (a sweep's function).
 
     Returns ``ms_per_step`` and ``reference_ms_per_step`` (timed in the same
     process), ``speedup``, mean ``active_joints`` of ``joints``, ``steps``,
