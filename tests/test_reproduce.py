@@ -6,10 +6,19 @@ import json
 import numpy as np
 import pytest
 
-from vdad import InputError
+import vdad.reproduce
+from vdad import InputError, report
 from vdad.cli import main
 from vdad.report import best_under, decreasing
-from vdad.reproduce import EXPERIMENTS, plan, reproduce, run_config
+from vdad.reproduce import (
+    EXPERIMENTS,
+    RESULT_FIELDS,
+    TRACE,
+    check_result,
+    plan,
+    reproduce,
+    run_config,
+)
 
 FILES = ["table1.md", "table1.csv", "figure8.png", "figure8.csv", "figure9.png",
          "figure9.csv", "dogs.md", "dogs.csv", "speed_vs_error.csv", "error_over_time.csv",
@@ -144,3 +153,117 @@ def test_bad_arguments(tmp_path, capsys):
     assert "--jobs" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["reproduce", "--only", "figure10"])
+
+
+SMALL = {"scene": "pendulum", "scene_args": {"n_bodies": 4}, "method": "adaptive",
+         "options": {"threshold": 1e-2}, "steps": 20, "every": 10}
+
+
+@pytest.fixture(scope="module")
+def small_result():
+    return json.loads(json.dumps(run_config(SMALL)))         # as stored and read back
+
+
+def _checked_only(value, fields):
+    """``value`` cut down to the fields that :func:`check_result` checks."""
+    return {k: _checked_only(value[k], f) if isinstance(f, dict) else value[k]
+            for k, f in fields.items()}
+
+
+def _leaves(fields, prefix=""):
+    for key, kind in fields.items():
+        if isinstance(kind, dict):
+            yield from _leaves(kind, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}"
+
+
+def _without(result, dotted):
+    out = json.loads(json.dumps(result))
+    *parents, last = dotted.split(".")
+    inner = out
+    for name in parents:
+        inner = inner[name]
+    del inner[last]
+    return out
+
+
+def test_check_result_names_what_is_missing_or_wrong(small_result):
+    assert check_result(small_result) is None
+    assert check_result(_checked_only(small_result, RESULT_FIELDS)) is None
+    assert check_result({"steps": 200}).startswith("incomplete (no 'ms_per_step', ")
+    for name in _leaves(RESULT_FIELDS):
+        assert check_result(_without(small_result, name)) == f"incomplete (no {name!r})"
+    assert check_result({**small_result, "steps": "200"}) == \
+        "invalid ('steps' is not an int: a str)"
+    assert check_result({**small_result, "ms_per_step": True}) == \
+        "invalid ('ms_per_step' is not a number or null: a bool)"
+    assert check_result({**small_result, "error": []}) == "invalid ('error' is not a dict: a list)"
+    trace = {**small_result["trace"], "t": ["0.1", 0.2]}
+    assert check_result({**small_result, "trace": trace}) == \
+        "invalid ('trace.t' is not a list of numbers or nulls: a list)"
+    trace = {**small_result["trace"], "t": [0.1]}
+    assert check_result({**small_result, "trace": trace}).startswith(
+        "invalid (trace columns of different lengths: ")
+    assert check_result([1, 2]) == "invalid (its result is a list, not a dict)"
+
+
+def test_report_reads_only_checked_fields(small_result, tmp_path):
+    """Every writer runs on results holding only what check_result checks, including
+    a run that diverged at its first step (no timing, no frames)."""
+    kept = _checked_only(small_result, RESULT_FIELDS)
+    diverged = {"ms_per_step": None, "reference_ms_per_step": None, "speedup": None,
+                "active_joints": None, "joints": 4, "steps": 0, "failure": "diverged",
+                "error": {m: {"mean": None, "max": None, "sum": None} for m in TRACE[1:]},
+                "trace": {k: [] for k in TRACE}}
+    assert check_result(diverged) is None
+    rows = {name: [{**(diverged if i % 3 == 2 else kept), "config": c}
+                   for i, c in enumerate(configs)] for name, configs in plan(True).items()}
+    files = []
+    for name in EXPERIMENTS:
+        files += getattr(report, f"write_{name}")(rows[name], tmp_path)
+    files += report.write_report(rows, tmp_path, True)
+    assert all(path.stat().st_size > 0 for path in files)
+    assert "diverged at step 1" in (tmp_path / "speed_vs_error.csv").read_text()
+
+
+def test_damaged_stored_runs_are_recomputed_with_one_line_each(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    command = ["reproduce", "--quick", "--only", "table1", "--out", str(out), "--no-progress"]
+    assert main(command) == 0
+    runs = sorted((out / "runs").glob("*.json"))
+    assert len(runs) == len(plan(True)["table1"])
+    incomplete, folder = runs[1], runs[4]
+    record = json.loads(incomplete.read_text())
+    incomplete.write_text(json.dumps({**record, "result": {"steps": 200}}))
+    damaged_configs = [record["config"], json.loads(folder.read_text())["config"]]
+    folder.unlink()
+    folder.mkdir()
+    stamps = {p.name: p.stat().st_mtime_ns for p in runs if p not in (incomplete, folder)}
+    calls = []
+
+    def counted(config):
+        calls.append(config)
+        return run_config(config)
+
+    monkeypatch.setattr(vdad.reproduce, "run_config", counted)   # --jobs 1: in this process
+    capsys.readouterr()
+    assert main(command) == 0
+    err = capsys.readouterr().err
+    lines = sorted((line for line in err.splitlines() if "stored record" in line),
+                   key=lambda line: "a folder" in line)     # in the order of the plan: sort
+    assert len(lines) == 2
+    assert lines[0] == (
+        f"vdad reproduce: stored record {incomplete} is incomplete (no 'ms_per_step', "
+        f"'reference_ms_per_step', 'speedup', 'active_joints', 'joints', 'failure', 'error', "
+        f"'trace'); recomputing it")
+    head = f"vdad reproduce: stored record {folder} is a folder, not a record file (moved aside to "
+    assert lines[1].startswith(head) and lines[1].endswith(".aside); recomputing it")
+    assert (out / "runs" / lines[1][len(head):-len("); recomputing it")]).is_dir()
+    assert "Error" not in err and "Errno" not in err
+    assert sorted(calls, key=json.dumps) == sorted(damaged_configs, key=json.dumps)
+    assert {p.name: p.stat().st_mtime_ns for p in runs
+            if p not in (incomplete, folder)} == stamps
+    for path in (incomplete, folder):
+        assert path.is_file() and check_result(json.loads(path.read_text())["result"]) is None
+    assert "| dca |" in (out / "table1.md").read_text()

@@ -128,10 +128,160 @@ def test_corrupt_records_are_recomputed(tmp_path):
     assert not store.has(configs[1]) and not store.has(configs[2])
     assert len(store.records()) == 2
     report = run_sweep(square, configs, store, progress=False)
+    assert list(report.damaged) == [config_key(configs[1]), config_key(configs[2])]
+    assert all(p.startswith("corrupt (not JSON: ") for p in report.damaged.values())
     assert report.computed == [config_key(configs[1]), config_key(configs[2])]
     assert report.reused == [config_key(configs[0]), config_key(configs[3])]
     assert report.results == [square(c) for c in configs]
     assert store.load(configs[1]) == square(configs[1])
+
+
+def needs_square(result):
+    """A consumer's validation: the result must hold an int ``square``."""
+    if "square" not in result:
+        return "incomplete (no 'square')"
+    if not isinstance(result["square"], int):
+        return f"invalid ('square' is a {type(result['square']).__name__})"
+    return None
+
+
+def counting(calls):
+    """``square`` that appends each configuration it computes to ``calls``."""
+    def fn(config):
+        calls.append(config["x"])
+        return square(config)
+    return fn
+
+
+def damaged_lines(err):
+    return [line for line in err.splitlines() if "stored record" in line]
+
+
+def test_incomplete_record_is_recomputed_once_and_named(tmp_path, capsys):
+    store = ResultStore(tmp_path)
+    configs = xs(4)
+    run_sweep(square, configs, store, progress=False, validate=needs_square)
+    path = store.path(configs[2])
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "result": {"steps": 200}}))   # valid JSON, incomplete
+    capsys.readouterr()
+    calls = []
+    report = run_sweep(counting(calls), configs, store, progress=False, validate=needs_square)
+    assert calls == [2]
+    assert report.computed == [config_key(configs[2])]
+    assert report.reused == [config_key(c) for c in configs if c["x"] != 2]
+    assert report.damaged == {config_key(configs[2]): "incomplete (no 'square')"}
+    assert report.results == [square(c) for c in configs]
+    lines = damaged_lines(capsys.readouterr().err)
+    assert lines == [f"sweep: stored record {path} is incomplete (no 'square'); recomputing it"]
+    assert store.load(configs[2]) == square(configs[2])            # the new record is complete
+    again = run_sweep(explode, configs, store, progress=False, validate=needs_square)
+    assert again.computed == [] and again.damaged == {}
+    assert damaged_lines(capsys.readouterr().err) == []
+
+
+def test_wrong_type_and_bare_records_are_recomputed(tmp_path, capsys):
+    store = ResultStore(tmp_path)
+    configs = xs(3)
+    run_sweep(square, configs, store, progress=False)
+    record = json.loads(store.path(configs[0]).read_text())
+    store.path(configs[0]).write_text(json.dumps({**record, "result": {"square": "zero"}}))
+    store.path(configs[1]).write_text('{"steps": 200}')        # not even a record
+    capsys.readouterr()
+    report = run_sweep(square, configs, store, progress=False, validate=needs_square)
+    assert report.computed == [config_key(c) for c in configs[:2]]
+    assert report.damaged == {config_key(configs[0]): "invalid ('square' is a str)",
+                              config_key(configs[1]): "incomplete (no 'key', 'config', 'result')"}
+    lines = damaged_lines(capsys.readouterr().err)
+    assert len(lines) == 2
+    assert str(store.path(configs[0])) in lines[0] and "'square' is a str" in lines[0]
+    assert str(store.path(configs[1])) in lines[1] and "no 'key', 'config', 'result'" in lines[1]
+    assert [store.load(c) for c in configs] == [square(c) for c in configs]
+
+
+def test_record_replaced_by_a_folder_is_moved_aside_and_recomputed(tmp_path, capsys):
+    store = ResultStore(tmp_path)
+    configs = xs(3)
+    run_sweep(square, configs, store, progress=False)
+    path = store.path(configs[1])
+    path.unlink()
+    path.mkdir()
+    (path / "keep.txt").write_text("user data")
+    capsys.readouterr()
+    assert not store.has(configs[1]) and len(store.records()) == 2
+    assert store.inspect(configs[1]) == (None, "a folder, not a record file")
+    calls = []
+    report = run_sweep(counting(calls), configs, store, progress=False)
+    assert calls == [1] and report.computed == [config_key(configs[1])]
+    assert report.results == [square(c) for c in configs]
+    lines = damaged_lines(capsys.readouterr().err)
+    assert len(lines) == 1
+    assert lines[0].startswith(f"sweep: stored record {path} is a folder, not a record file "
+                               f"(moved aside to {path.name}.")
+    assert lines[0].endswith(".aside); recomputing it")
+    assert path.is_file() and store.load(configs[1]) == square(configs[1])
+    aside = [p for p in tmp_path.iterdir() if p.name.endswith(".aside")]
+    assert len(aside) == 1 and (aside[0] / "keep.txt").read_text() == "user data"
+    assert sorted(r["config"]["x"] for r in store) == [0, 1, 2]    # the folder aside is ignored
+
+
+def test_save_over_a_folder_moves_it_aside(tmp_path):
+    store = ResultStore(tmp_path)
+    store.path({"x": 1}).mkdir()
+    store.save({"x": 1}, square({"x": 1}), 0.5)
+    assert store.load({"x": 1}) == square({"x": 1})
+    assert len([p for p in tmp_path.iterdir() if p.name.endswith(".aside")]) == 1
+
+
+def test_record_whose_result_is_a_list_is_recomputed(tmp_path, capsys):
+    store = ResultStore(tmp_path)
+    configs = xs(2)
+    run_sweep(square, configs, store, progress=False)
+    path = store.path(configs[0])
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "result": [0, 0]}))
+    capsys.readouterr()
+    calls = []
+    report = run_sweep(counting(calls), configs, store, progress=False, validate=needs_square)
+    assert calls == [0] and report.reused == [config_key(configs[1])]
+    assert report.damaged == {config_key(configs[0]): "invalid (its result is a list, not a dict)"}
+    assert damaged_lines(capsys.readouterr().err) == [
+        f"sweep: stored record {path} is invalid (its result is a list, not a dict); "
+        f"recomputing it"]
+    assert store.load(configs[0]) == square(configs[0])
+
+
+def test_unreadable_record_is_recomputed(tmp_path, capsys, monkeypatch):
+    store = ResultStore(tmp_path)
+    configs = xs(2)
+    run_sweep(square, configs, store, progress=False)
+    locked = store.path(configs[0])
+    read_bytes = Path.read_bytes
+
+    def denied(self):
+        if self == locked:
+            raise PermissionError(13, "Permission denied", str(self))
+        return read_bytes(self)
+
+    monkeypatch.setattr(Path, "read_bytes", denied)      # chmod does not stop root
+    capsys.readouterr()
+    report = run_sweep(square, configs, store, progress=False)
+    assert report.computed == [config_key(configs[0])]
+    assert report.damaged == {config_key(configs[0]): "unreadable (Permission denied)"}
+    assert damaged_lines(capsys.readouterr().err) == [
+        f"sweep: stored record {locked} is unreadable (Permission denied); recomputing it"]
+    monkeypatch.undo()
+    assert store.load(configs[0]) == square(configs[0])
+
+
+def test_complete_records_are_reused_under_validation(tmp_path, capsys):
+    configs = xs(5)
+    first = run_sweep(square, configs, tmp_path, jobs=2, progress=False, validate=needs_square)
+    capsys.readouterr()
+    again = run_sweep(explode, configs, tmp_path, jobs=2, progress=False, validate=needs_square)
+    assert again.computed == [] and again.damaged == {}
+    assert again.reused == first.computed and again.results == first.results
+    assert capsys.readouterr().err == ""
 
 
 # ---------------------------------------------------------------- sweeps
@@ -217,6 +367,7 @@ def test_non_dict_result_raises_input_error(tmp_path):
     (dict(store=3), "store must be a ResultStore or a folder path"),
     (dict(scheduler=42), "scheduler must be a Dask scheduler address or a distributed.Client"),
     (dict(scheduler=" "), "empty string"),
+    (dict(validate=("square",)), "validate must be None or a callable"),
 ])
 def test_run_sweep_validates_arguments(tmp_path, kwargs, match):
     arguments = dict(fn=square, configs=xs(2), store=tmp_path / "store", progress=False)

@@ -13,9 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .reproduce import FAMILIES, PAPER, family, parameter
+from .reproduce import FAMILIES, PAPER, TRACE, family, parameter
 
-TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
 MEASURES = (("mean_px", "mean screen displacement (px)"),
             ("differing_pixels", "differing pixels per frame"))
 
@@ -56,6 +55,10 @@ def _num(x, digits=3):
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return "-"
     return f"{x:.{digits}g}"
+
+
+def _minus(x, y):
+    return None if x is None else x - y
 
 
 def _failed(row):
@@ -119,7 +122,8 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
                 ax.plot([x_of(r["config"]) for r in bad], [r[key] for r in bad], "x",
                         color=line.get_color(), label=f"{m} (diverged)")
     for r in dca:
-        axes[1].axhline(r["ms_per_step"], color="k", ls="--", lw=1, label="full DCA")
+        if r["ms_per_step"] is not None:
+            axes[1].axhline(r["ms_per_step"], color="k", ls="--", lw=1, label="full DCA")
         axes[0].axhline(r["joints"], color="k", ls="--", lw=1, label="all joints")
     xs = sorted({x_of(r["config"]) for r in rows if r["config"]["method"] != "dca"})
     for ax, ylabel in zip(axes, ("active joints", "ms per step"), strict=True):
@@ -155,7 +159,8 @@ def dogs_table(rows):
         n_dogs = r["config"]["scene_args"].get("n_dogs", 100)
         out.append([r["config"]["method"], _num(parameter(r["config"])), _num(r["ms_per_step"]),
                     _num(r["speedup"]), _num(r["active_joints"]),
-                    _num(r["active_joints"] - n_dogs), r["joints"] - n_dogs, _num(_err(r)),
+                    _num(_minus(r["active_joints"], n_dogs)), r["joints"] - n_dogs,
+                    _num(_err(r)),
                     _num(_err(r, "differing_pixels"))])
     return header, out
 
@@ -241,10 +246,12 @@ def _write_error_over_time(rows, out, scene, plt):
 
 def best_under(rows, limit, measure="mean_px"):
     """{family: (speed-up, parameter)} of the fastest run of each family whose mean
-    ``measure`` stays within ``limit`` and that did not diverge."""
+    ``measure`` stays within ``limit``, that did not diverge and whose speed-up
+    was measured."""
     best = {}
     for r in rows:
-        if r["failure"] or r["config"]["method"] == "dca" or not _err(r, measure) <= limit:
+        if (r["failure"] or r["config"]["method"] == "dca" or not _err(r, measure) <= limit
+                or r["speedup"] is None or not np.isfinite(r["speedup"])):
             continue
         f = family(r["config"])
         if f not in best or r["speedup"] > best[f][0]:

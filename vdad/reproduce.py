@@ -6,7 +6,9 @@ scene, scene arguments, method, method options, steps, frames); :func:`run_confi
 runs one of them beside its full-DCA reference (:func:`vdad.visual_error.measure`)
 and returns its timing, active joints and visual error; :func:`reproduce` runs
 them all as a resumable sweep (:func:`vdad.sweep.run_sweep`) and writes the
-tables, figures and the report into one folder.
+tables, figures and the report into one folder. A stored run that lacks what the
+report reads (:data:`RESULT_FIELDS`, checked by :func:`check_result`) is
+recomputed, with one line saying so.
 """
 
 from __future__ import annotations
@@ -28,6 +30,35 @@ EXPERIMENTS = ("table1", "figure8", "figure9", "dogs", "speed_vs_error")
 PENDULUM300 = {"n_bodies": 300, "radius": 0.05, "resolution": [640, 480]}
 FAMILIES = ("adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb", "view-oq",
             "lod-distance", "sleeping")
+TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
+
+
+def _is_number(value):
+    return value is None or (isinstance(value, (int, float)) and not isinstance(value, bool))
+
+
+def _is_count(value):
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_text(value):
+    return value is None or isinstance(value, str)
+
+
+def _is_series(value):
+    return isinstance(value, list) and all(_is_number(x) for x in value)
+
+
+_NUMBER = ("a number or null", _is_number)
+# What the report (vdad.report) reads of a run's result, {key: (kind, test)}, nested
+# for the error summary and the trace: a stored run must hold all of it to be reused.
+RESULT_FIELDS = {
+    "ms_per_step": _NUMBER, "reference_ms_per_step": _NUMBER, "speedup": _NUMBER,
+    "active_joints": _NUMBER, "joints": ("an int", _is_count), "steps": ("an int", _is_count),
+    "failure": ("a str or null", _is_text),
+    "error": {m: {stat: _NUMBER for stat in ("mean", "max", "sum")} for m in TRACE[1:]},
+    "trace": {k: ("a list of numbers or nulls", _is_series) for k in TRACE},
+}
 
 
 def _config(scene, args, method, options, steps, every):
@@ -133,7 +164,7 @@ def run_config(config) -> dict:
     steps before), ``error`` (:meth:`~vdad.visual_error.ErrorTrace.summary`) and
     the per-frame ``trace``."""
     from .scenes import SCENES
-    from .visual_error import MEASURES, measure
+    from .visual_error import measure
 
     if config["scene"] not in SCENES:
         raise InputError(f"unknown scene {config['scene']!r}; choose one of {sorted(SCENES)}")
@@ -148,7 +179,51 @@ def run_config(config) -> dict:
     speedup = info["reference_ms_per_step"] / info["ms_per_step"] if info["steps"] else None
     return {**finite, "joints": scene.model.nb, "speedup": speedup, "error": trace.summary(),
             "trace": {k: [None if not np.isfinite(x) else float(x) for x in getattr(trace, k)]
-                      for k in ("t", *MEASURES)}}
+                      for k in TRACE}}
+
+
+def check_result(result):
+    """Validation of a stored run before the report reads it (the ``validate`` of
+    :func:`reproduce`'s sweep): None when ``result`` holds every field of
+    :data:`RESULT_FIELDS` with its type and trace columns of one length, otherwise
+    what is wrong, e.g. ``"incomplete (no 'ms_per_step', 'error.mean_px')"`` or
+    ``"invalid ('steps' is not an int: a str)"``."""
+    if not isinstance(result, dict):
+        return f"invalid (its result is {_a(result)}, not a dict)"
+    missing, wrong = [], []
+    _check_fields(result, RESULT_FIELDS, "", missing, wrong)
+    if missing:
+        return f"incomplete (no {', '.join(map(repr, missing))})"
+    if wrong:
+        return f"invalid ({'; '.join(wrong)})"
+    lengths = {k: len(result["trace"][k]) for k in TRACE}
+    if len(set(lengths.values())) > 1:
+        return f"invalid (trace columns of different lengths: {lengths})"
+    return None
+
+
+def _a(value):
+    """The JSON type of ``value`` with its article: "null", "a str", "an int"..."""
+    if value is None:
+        return "null"
+    name = type(value).__name__
+    return f"{'an' if name[0] in 'aeiou' else 'a'} {name}"
+
+
+def _check_fields(value, fields, prefix, missing, wrong):
+    """Append to ``missing`` the dotted names of the ``fields`` absent from ``value``
+    and to ``wrong`` a phrase for each present one of the wrong kind."""
+    for key, kind in fields.items():
+        name = prefix + key
+        if key not in value:
+            missing.append(name)
+        elif isinstance(kind, dict):
+            if isinstance(value[key], dict):
+                _check_fields(value[key], kind, name + ".", missing, wrong)
+            else:
+                wrong.append(f"{name!r} is not a dict: {_a(value[key])}")
+        elif not kind[1](value[key]):
+            wrong.append(f"{name!r} is not {kind[0]}: {_a(value[key])}")
 
 
 def _check_extras():
@@ -167,8 +242,10 @@ def _check_extras():
 
 def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None) -> list:
     """Run the experiments ``only`` (default: all of :data:`EXPERIMENTS`) as one
-    resumable sweep stored in ``out/runs`` (a killed run resumes), then write the
-    tables, figures and ``report.md`` into ``out``. Returns the files written."""
+    resumable sweep stored in ``out/runs`` (a killed run resumes; a stored run
+    that is unreadable or fails :func:`check_result` is recomputed, with one line
+    on stderr), then write the tables, figures and ``report.md`` into ``out``.
+    Returns the files written."""
     from .sweep import ResultStore, run_sweep
 
     only = list(EXPERIMENTS) if only is None else list(only)
@@ -181,9 +258,10 @@ def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None
     experiments = {k: v for k, v in plan(quick).items() if k in only}
     configs = [c for cs in experiments.values() for c in cs]
     report = run_sweep(run_config, configs, ResultStore(out / "runs"), jobs=jobs,
-                       scheduler=scheduler, progress=progress, desc="vdad reproduce")
+                       scheduler=scheduler, progress=progress, desc="vdad reproduce",
+                       validate=check_result)
     results = iter(report.results)                    # in the order of configs
-    rows = {name: [dict(config=c, **next(results)) for c in cs]
+    rows = {name: [{**next(results), "config": c} for c in cs]
             for name, cs in experiments.items()}
     from . import report as writers
 

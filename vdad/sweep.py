@@ -11,8 +11,15 @@ as it arrives, one file ``<folder>/<key>.json`` per configuration, atomically (a
 temporary file in the same folder, then :func:`os.replace`). A sweep killed at
 any moment therefore leaves only complete records, and the same call run again
 computes exactly the configurations whose records are missing: those that had
-not started and those that were in flight. A file that does not parse (written
-by other means, truncated) counts as missing and is recomputed.
+not started and those that were in flight.
+
+Damaged records: a record that cannot be used counts as missing and is
+recomputed, with one line on stderr that names its file and what is wrong: a
+file that cannot be read (permission denied), a folder in its place (moved aside
+under a new name, never deleted, so that the new record can be written), a file
+that does not parse (written by other means, truncated), a record that lacks its
+key, configuration or result dict, and a result that the caller's ``validate``
+rejects (incomplete: a consumer's key missing, or of the wrong type).
 """
 
 from __future__ import annotations
@@ -22,11 +29,12 @@ import hashlib
 import json
 import os
 import pickle
+import sys
 import time
 import traceback
 import uuid
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
@@ -51,12 +59,14 @@ class SweepReport:
     (duplicate configurations share one result). computed: keys of the
     configurations computed by this call; reused: keys of those loaded from the
     store. Both lists hold each key once, in the order of first appearance in
-    ``configs``.
+    ``configs``. damaged: {key: what was wrong} of the computed configurations
+    whose stored record could not be used (see :meth:`ResultStore.inspect`).
     """
 
     results: list[dict]
     computed: list[str]
     reused: list[str]
+    damaged: dict[str, str] = field(default_factory=dict)
 
 
 class _Outcome(NamedTuple):
@@ -92,8 +102,9 @@ class ResultStore:
 
     Each file holds the record ``{"key", "config", "result", "seconds", "finished"}``
     (``seconds``: wall time of ``fn`` in the worker; ``finished``: ISO 8601 UTC
-    time of the save). The folder is created if needed. Files that do not parse,
-    or whose content does not match their name, count as missing.
+    time of the save). The folder is created if needed. Files that cannot be
+    read or parsed, or whose content does not match their name, count as missing
+    (:meth:`inspect` says why).
     """
 
     def __init__(self, folder):
@@ -145,12 +156,17 @@ class ResultStore:
             raise InputError(f"the result of sweep configuration {config!r} is not "
                              f"JSON-serialisable: {exc}") from exc
         temporary = self.folder / f".{key}.{uuid.uuid4().hex}.tmp"
+        target = self.folder / f"{key}.json"
         try:
             with open(temporary, "x", encoding="utf-8") as handle:
                 handle.write(text)
                 handle.flush()
                 os.fsync(handle.fileno())
-            os.replace(temporary, self.folder / f"{key}.json")
+            try:
+                os.replace(temporary, target)
+            except IsADirectoryError:               # a folder in the record's place
+                self.set_aside(target)
+                os.replace(temporary, target)
         except BaseException:
             with contextlib.suppress(OSError):
                 temporary.unlink()
@@ -166,19 +182,76 @@ class ResultStore:
         """Iterate over :meth:`records`."""
         return iter(self.records())
 
-    @staticmethod
-    def _read(path):
-        """Record stored at ``path``, or None when it is absent, corrupt or mismatched."""
+    def inspect(self, config, validate=None):
+        """Stored record of ``config`` and what makes it unusable: ``(record, problem)``.
+
+        Returns ``(record, None)`` for a usable record, ``(None, None)`` when no
+        file is stored, and ``(None, problem)`` for a damaged one, ``problem``
+        being a phrase that completes "the stored record is ...": ``"a folder,
+        not a record file"``, ``"unreadable (Permission denied)"``, ``"corrupt
+        (not JSON: ...)"``, ``"incomplete (no 'result')"``, ``"invalid (its
+        result is a list, not a dict)"``... validate: None, or a callable
+        ``validate(result) -> str | None`` that returns None for a usable result
+        dict and otherwise such a phrase, e.g. ``"incomplete (no 'ms_per_step')"``.
+        """
+        return self._inspect(self.path(config), validate)
+
+    def set_aside(self, path):
+        """Rename ``path`` (a folder in a record's place) to a free name that is not a record.
+
+        The new name, ``<key>.json.<8 hex digits>.aside`` in the store's folder,
+        is not matched by ``*.json``, so the store ignores it; nothing is deleted.
+        Returns the new path; :class:`InputError` naming both if the rename fails.
+        """
+        path = Path(path)
+        aside = self.folder / f"{path.name}.{uuid.uuid4().hex[:8]}.aside"
         try:
-            record = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return None
-        valid = (isinstance(record, dict) and record.get("key") == path.stem
-                 and isinstance(record.get("result"), dict) and "config" in record)
-        return record if valid else None
+            os.rename(path, aside)
+        except OSError as exc:
+            raise InputError(f"cannot move {str(path)!r}, which is in the place of a stored "
+                             f"record, aside to {str(aside)!r}: {exc}") from exc
+        return aside
+
+    @staticmethod
+    def _inspect(path, validate=None):
+        """:meth:`inspect` of the record file at ``path``."""
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            return None, None
+        except IsADirectoryError:
+            return None, "a folder, not a record file"
+        except OSError as exc:
+            if path.is_dir():
+                return None, "a folder, not a record file"
+            return None, f"unreadable ({exc.strerror or exc})"
+        try:
+            record = json.loads(data.decode("utf-8"))
+        except ValueError as exc:                   # a JSONDecodeError or UnicodeDecodeError
+            return None, f"corrupt (not JSON: {exc})"
+        if not isinstance(record, dict):
+            return None, f"not a record (a JSON {type(record).__name__}, not an object)"
+        missing = [name for name in ("key", "config", "result") if name not in record]
+        if missing:
+            return None, f"incomplete (no {', '.join(map(repr, missing))})"
+        if record["key"] != path.stem:
+            return None, f"the record of another configuration (key {record['key']!r})"
+        if not isinstance(record["result"], dict):
+            return None, (f"invalid (its result is a {type(record['result']).__name__}, "
+                          f"not a dict)")
+        problem = None if validate is None else validate(record["result"])
+        if problem is None:
+            return record, None
+        return None, " ".join(str(problem).split())          # one line, whatever validate says
+
+    @classmethod
+    def _read(cls, path):
+        """Record stored at ``path``, or None when it is absent or damaged (:meth:`inspect`)."""
+        return cls._inspect(path)[0]
 
 
-def run_sweep(fn, configs, store, jobs=1, scheduler=None, progress=True, desc="sweep"):
+def run_sweep(fn, configs, store, jobs=1, scheduler=None, progress=True, desc="sweep",
+              validate=None):
     """Resumable sweep: ``fn(config)`` for every configuration not yet in ``store``.
 
     fn: picklable module-level function ``fn(config) -> dict`` (JSON-serialisable).
@@ -191,6 +264,12 @@ def run_sweep(fn, configs, store, jobs=1, scheduler=None, progress=True, desc="s
     ``jobs`` is ignored (a client built from an address is closed at the end, a
     given client is left open). progress: show a tqdm bar (on stderr) over the
     missing configurations, described by ``desc`` and the number reused.
+    validate: None, or ``validate(result) -> str | None``, the check of a stored
+    result dict before it is reused (None: usable; otherwise what is wrong, see
+    :meth:`ResultStore.inspect`), so that a record a consumer cannot read is
+    recomputed. Each damaged record is reported in one line on stderr, whatever
+    ``progress``: ``"<desc>: stored record <path> is <problem>; recomputing it"``;
+    a folder in a record's place is first moved aside (:meth:`ResultStore.set_aside`).
 
     Each result is saved into ``store`` by this process as it arrives, with the
     seconds ``fn`` took in its worker, so an interrupted sweep loses only the
@@ -218,19 +297,29 @@ def run_sweep(fn, configs, store, jobs=1, scheduler=None, progress=True, desc="s
         store = ResultStore(store)
     if scheduler is not None:
         _check_scheduler(scheduler)
+    if validate is not None and not callable(validate):
+        raise InputError(f"validate must be None or a callable validate(result) -> str | None, "
+                         f"got {type(validate).__name__}")
 
     keys = [config_key(config) for config in configs]
     unique = {}
     for key, config in zip(keys, configs, strict=True):
         unique.setdefault(key, config)
-    results, reused, missing = {}, [], []
+    results, reused, missing, damaged = {}, [], [], {}
     for key, config in unique.items():
-        record = store._read(store.path(config))
-        if record is None:
-            missing.append((key, config))
-        else:
+        record, problem = store.inspect(config, validate)
+        if record is not None:
             results[key] = record["result"]
             reused.append(key)
+            continue
+        if problem is not None:
+            path = store.path(config)
+            if path.is_dir() and not path.is_symlink():
+                problem += f" (moved aside to {store.set_aside(path).name})"
+            damaged[key] = problem
+            tqdm.write(f"{desc}: stored record {path} is {problem}; recomputing it",
+                       file=sys.stderr)
+        missing.append((key, config))
 
     if missing:
         todo = [config for _, config in missing]
@@ -254,7 +343,8 @@ def run_sweep(fn, configs, store, jobs=1, scheduler=None, progress=True, desc="s
                 bar.update()
 
     computed = [key for key, _ in missing]
-    return SweepReport(results=[results[key] for key in keys], computed=computed, reused=reused)
+    return SweepReport(results=[results[key] for key in keys], computed=computed, reused=reused,
+                       damaged=damaged)
 
 
 def _timed_call(fn, index, config, remote=False):
