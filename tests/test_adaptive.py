@@ -407,8 +407,7 @@ def test_threshold_monotone_on_300_pendulum():
 
 def test_adaptive_options_are_checked():
     scene = pendulum(4)
-    with pytest.raises(InputError, match="threshold=.*budget="):
-        scene.simulator(method="adaptive")
+    assert scene.simulator(method="adaptive").options["threshold"] == 1e-5   # the scene's
     with pytest.raises(InputError, match="threshold=.*budget="):
         scene.simulator(method="adaptive", threshold=1e-3, budget=2)
     with pytest.raises(InputError, match="threshold must be .* got -0.001"):
@@ -423,10 +422,17 @@ def test_adaptive_options_are_checked():
         scene.simulator(method="adaptive", threshold=1e-3, policy="bogus")
     with pytest.raises(InputError, match="kappa must be >= 1, got 0.5"):
         scene.simulator(method="adaptive", threshold=1e-3, kappa=0.5)
-    with pytest.raises(InputError, match=r"\['threshold'\] need method='adaptive'"):
+    with pytest.raises(InputError,
+                       match=r"threshold= applies to method='adaptive'.*not to method='dca'"):
         scene.simulator(method="dca", threshold=1e-3)
-    with pytest.raises(InputError, match="threshold must be .* got 'small'"):
+    with pytest.raises(InputError, match="threshold must be a real number.*string: 'small'"):
         scene.simulator(method="adaptive", threshold="small")
+    with pytest.raises(InputError, match="budget must be a positive integer, got 0"):
+        scene.simulator(method="adaptive", budget=0)
+    with pytest.raises(InputError, match="coverage_every must be a positive integer, got 0"):
+        scene.simulator(method="adaptive", threshold=1e-3, coverage_every=0)
+    with pytest.raises(InputError, match="coverage must be a callable"):
+        scene.simulator(method="adaptive", threshold=1e-3, coverage=np.ones(9))
     with pytest.raises(InputError, match="dwell must be"):
         scene.simulator(method="adaptive", threshold=1e-3, dwell=True)
     with pytest.raises(InputError, match=r"weights\['joint1'\] must be a positive scalar or 1"):

@@ -86,12 +86,12 @@ def test_a_fast_body_stays_awake():
 
 
 @pytest.mark.parametrize("options, message", [
-    (dict(method="lod-distance"), "needs distance"),
     (dict(method="lod-distance", distance=-1.0), "distance"),
     (dict(method="lod-distance", distance=1.0, threshold=0.1), "threshold 0"),
     (dict(method="sleeping", sleep_speed=0.0), "sleep_speed"),
     (dict(method="sleeping", sleep_time=np.nan), "sleep_time"),
-    (dict(method="sleeping", distance=1.0), "do not apply"),
+    (dict(method="sleeping", distance=1.0),
+     "distance= applies to method='lod-distance', not to method='sleeping'"),
 ])
 def test_bad_baseline_options(options, message):
     with pytest.raises(InputError, match=message):

@@ -1,12 +1,13 @@
 """The command line (vdad.cli)."""
 
 import json
+import re
 import subprocess
 import sys
 
 import pytest
 
-from vdad.cli import main
+from vdad.cli import in_cli_terms, main
 
 
 def test_run_pendulum_writes_json(tmp_path, capsys):
@@ -61,7 +62,7 @@ def test_run_adaptive_reports_active_joints_and_counters(tmp_path):
     assert main(["run", "pendulum", "--bodies", "40", "--steps", "60", "--method", "adaptive",
                  "--threshold", "1e-4", "--json", str(out), "--no-progress"]) == 0
     data = json.loads(out.read_text())
-    assert data["method"] == "adaptive" and data["adaptive"]["threshold"] == 1e-4
+    assert data["method"] == "adaptive" and data["options"]["threshold"] == 1e-4
     assert 0 < data["active_joints_mean"] < 40
     counters = data["counters_mean"]
     for key in ("accelerated", "assembled", "back_substituted", "front", "force_update",
@@ -80,12 +81,24 @@ def test_run_budget_keeps_the_budget(tmp_path):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["run", "pendulum", "--threshold", "1e-3"], "need --method adaptive, view-bvh or view-oq"),
-    (["run", "pendulum", "--method", "adaptive"], "exactly one of threshold= or budget="),
+    (["run", "pendulum", "--threshold", "1e-3"],
+     "--threshold applies to --method adaptive, --method view-bvh or --method view-oq, not to "
+     "--method dca"),
+    (["run", "pendulum", "--method", "adaptive", "--threshold", "1e-3", "--budget", "3"],
+     "exactly one of --threshold or --budget"),
+    (["run", "pendulum", "--method", "adaptive", "--kappa", "0.5"], "--kappa must be >= 1"),
+    (["run", "pendulum", "--method", "adaptive", "--volume", "obb"],
+     "--volume applies to --method view-bvh, not to --method adaptive"),
+    (["run", "pendulum", "--method", "view-bvh", "--counting", "merged"],
+     "--counting applies to --method view-oq, not to --method view-bvh"),
+    (["run", "pendulum", "--sleep-time", "2"], "--sleep-time applies to --method sleeping"),
 ])
 def test_adaptive_option_errors(argv, message, capsys):
+    """Errors speak in the CLI's options, not in Python keywords."""
     assert main(argv + ["--no-progress", "--steps", "1"]) == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert message in err
+    assert not re.search(r"\w=|_|method '", err), err                # no Python keywords
 
 
 @pytest.mark.parametrize("method, extra", [
@@ -183,15 +196,33 @@ def test_run_baselines(tmp_path):
     assert main(["run", "pendulum", "--bodies", "6", "--steps", "60", "--method", "sleeping",
                  "--sleep-speed", "0.1", "--sleep-time", "0.2", "--json", str(sleep),
                  "--no-progress"]) == 0
-    assert json.loads(sleep.read_text())["adaptive"] == {
-        "policy": "momentum", "metric": "coefficients", "dwell": 10, "kappa": 4.0,
-        "sleep_speed": 0.1, "sleep_time": 0.2}
+    assert json.loads(sleep.read_text())["options"] == {
+        "threshold": 0.0, "sleep_speed": 0.1, "sleep_time": 0.2, "kappa": 4.0, "dwell": 10,
+        "policy": "momentum", "lookahead": True, "metric": "coefficients",
+        "coverage_every": 1}
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["run", "pendulum", "--method", "lod-distance"], "needs distance"),
-    (["run", "pendulum", "--method", "sleeping", "--threshold", "0.1"], "--threshold"),
+    (["run", "pendulum", "--method", "lod-distance", "--budget", "3"],
+     "--budget applies to --method adaptive, --method view-bvh or --method view-oq, not to "
+     "--method lod-distance (a baseline runs at threshold 0)"),
+    (["run", "pendulum", "--method", "sleeping", "--threshold", "0.1"],
+     "--threshold applies to"),
+    (["run", "pendulum", "--method", "sleeping", "--distance", "3"],
+     "--distance applies to --method lod-distance, not to --method sleeping"),
 ])
 def test_baseline_option_errors(argv, message, capsys):
     assert main(argv + ["--no-progress"]) == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("message, expected", [
+    ("threshold= applies to method='adaptive', not to method='dca'",
+     "--threshold applies to --method adaptive, not to --method dca"),
+    ("kappa must be >= 1, got 0.5", "--kappa must be >= 1, got 0.5"),
+    ("sleep_time must be positive", "--sleep-time must be positive"),
+    ("coverage_every= and weights= do not apply", "--coverage-every and weights= do not apply"),
+    ("the threshold of 0 and kappa", "the threshold of 0 and kappa"),   # prose stays prose
+])
+def test_errors_in_cli_terms(message, expected):
+    assert in_cli_terms(message) == expected

@@ -422,10 +422,6 @@ def test_contact_points_need_geometry():
         contact_points(free_body(name="bare"))
     with pytest.raises(ModelError, match="model 'bare' has no geometry"):
         FloorContact(free_body(name="bare"))
-    odd = free_body([Geom("plane", (1.0,))], name="odd")
-    with pytest.raises(ModelError, match="body 'body': no contact points for geometry kind "
-                                         "'plane'"):
-        contact_points(odd)
 
 
 # --- floor contact -------------------------------------------------------------------

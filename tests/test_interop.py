@@ -226,6 +226,25 @@ def test_load_mjcf_missing_file(tmp_path):
         load_mjcf(path)
 
 
+@pytest.mark.parametrize("path", [None, 3, ["robot.xml"]])
+def test_load_mjcf_takes_a_path(path):
+    with pytest.raises(vdad.InputError, match="load_mjcf takes the path of an MJCF file"):
+        load_mjcf(path)
+
+
+def test_load_mjcf_rejects_unknown_options(hip_xml):
+    with pytest.raises(vdad.InputError, match=r"load_mjcf got unknown option\(s\) "
+                                              r"\['strickt'\]; it takes \['path', 'strict'\]"):
+        load_mjcf(hip_xml, strickt=False)
+    assert load_mjcf(hip_xml, strict=False).nb == load_mjcf(hip_xml).nb
+
+
+@pytest.mark.parametrize("m", [None, "robot.xml", lambda: 0])
+def test_from_mujoco_takes_a_compiled_model(m):
+    with pytest.raises(vdad.InputError, match="from_mujoco takes a compiled mujoco.MjModel"):
+        vdad.from_mujoco(m)
+
+
 def test_to_mjspec_keeps_names_and_geoms(hip_xml):
     model = load_mjcf(hip_xml)
     spec = to_mjspec(model)

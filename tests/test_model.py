@@ -13,35 +13,130 @@ def two_links(**overrides):
     return bodies, joints
 
 
-@pytest.mark.parametrize("body, match", [
-    (Body("bad", 0.0), "body 'bad': mass must be positive"),
-    (Body("bad", -1.0), "body 'bad': mass must be positive"),
-    (Body("bad", float("nan")), "body 'bad': mass"),
-    (Body("bad", 1.0, inertia=np.diag([1.0, 1.0, -1.0])), "body 'bad'.*not positive definite"),
-    (Body("bad", 1.0, inertia=np.diag([1.0, 1.0, 3.0])), "body 'bad'.*triangle inequality"),
-    (Body("bad", 1.0, inertia=[[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), "body 'bad'.*symmetric"),
-    (Body("bad", 1.0, com=(0, np.inf, 0)), "body 'bad': com"),
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(mass=0.0), "body 'bad': mass must be positive"),
+    (dict(mass=-1.0), "body 'bad': mass must be positive"),
+    (dict(mass=float("nan")), "body 'bad': mass must be finite"),
+    (dict(mass="1.0"), "body 'bad': mass must be a real number.*a string"),
+    (dict(mass=None), "body 'bad': mass must be a real number.*got None"),
+    (dict(mass=[1, 2]), "body 'bad': mass must be a single number"),
+    (dict(mass=1 + 1j), "body 'bad': mass must be a real number.*complex"),
+    (dict(mass=True), "body 'bad': mass must be a real number.*boolean"),
+    (dict(inertia=np.diag([1.0, 1.0, -1.0])), "body 'bad'.*not positive definite"),
+    (dict(inertia=np.diag([1.0, 1.0, 3.0])), "body 'bad'.*triangle inequality"),
+    (dict(inertia=[[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), "body 'bad'.*symmetric"),
+    (dict(inertia="abc"), "body 'bad': inertia must be a real number.*string"),
+    (dict(inertia=[[1, 0, 0], [0, 1], [0, 0, 1]]), "body 'bad': inertia .*ragged"),
+    (dict(inertia=[1, 2]), "body 'bad': inertia must be a finite 3x3 matrix or 3 moments"),
+    (dict(com=(0, np.inf, 0)), "body 'bad': com has non-finite"),
+    (dict(com="abc"), "body 'bad': com must be a real number"),
+    (dict(geoms=("sphere",)), "body 'bad': geoms must be vdad.Geom objects, got 'sphere'"),
+    (dict(geoms=vdad.Geom("sphere", (1.0,))), "body 'bad': geoms must be a tuple"),
 ])
-def test_invalid_bodies_name_the_body(body, match):
+def test_invalid_bodies_name_the_body(kwargs, match):
     with pytest.raises(ModelError, match=match):
-        Model([body], [Joint("j", None, "bad")])
+        Body("bad", **{"mass": 1.0, **kwargs})
+
+
+@pytest.mark.parametrize("name", [None, "", 3])
+def test_body_and_joint_names_are_strings(name):
+    with pytest.raises(ModelError, match="body name must be a non-empty string"):
+        Body(name, 1.0)
+    with pytest.raises(ModelError, match="joint name must be a non-empty string"):
+        Joint(name, None, "b")
+
+
+def test_bodies_are_normalised_and_hashable():
+    b = Body("b", np.float32(2), com=np.array([0, 0, 1]), inertia=[1, 2, 2.5])
+    assert b.mass == 2.0 and type(b.mass) is float and b.com == (0.0, 0.0, 1.0)
+    assert b.inertia == ((1.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.5))
+    assert hash(b) == hash(Body("b", 2.0, (0, 0, 1), np.diag([1, 2, 2.5])))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(axis=(0, 0, 0)), "joint 'jb': zero axis"),
+    (dict(axis=(0, np.nan, 1)), "joint 'jb': axis has non-finite entries"),
+    (dict(axis="x"), "joint 'jb': axis must be a real number.*string"),
+    (dict(kind="hinge3"), "joint 'jb': unknown kind 'hinge3'"),
+    (dict(damping=-1.0), "joint 'jb': damping must be >= 0"),
+    (dict(stiffness="a"), "joint 'jb': stiffness must be a real number"),
+    (dict(placement=(0, 0, -1)), "joint 'jb': placement must be a vdad.Pose.*tuple"),
+    (dict(kind="composite"), "joint 'jb': a composite joint needs stages"),
+    (dict(kind="composite", stages=("hinge",)), "joint 'jb': stage 0 must be a vdad.joints"),
+    (dict(kind="composite", stages="hinge"), "joint 'jb': stages must be a tuple"),
+    (dict(stages=vdad.joints.revolute()), "joint 'jb': stages apply to kind='composite'"),
+    (dict(parent=3), "joint 'jb': parent must be a body name or None"),
+    (dict(child=None), "joint 'jb': child must be a body name"),
+    (dict(limits=(1, 0)), r"joint 'jb': limits must be \(low, high\) with low < high"),
+    (dict(limits=(0, np.nan)), "joint 'jb': limits must be .*low < high"),
+    (dict(limits="abc"), r"joint 'jb': limits must be \(low, high\), got 'abc'"),
+    (dict(limits=(0, 1, 2)), r"joint 'jb': limits must be \(low, high\)"),
+    (dict(kind="free", limits=(0, 1)), "joint 'jb': limits: a free joint has no limits"),
+    (dict(kind="composite", stages=vdad.joints.revolute() + vdad.joints.revolute(),
+          limits=(0, 1)), "joint 'jb': limits: a joint of 2 stages takes one"),
+    (dict(kind="composite", stages=vdad.joints.revolute() + vdad.joints.revolute(),
+          limits=((0, 1), (2, 1))), r"joint 'jb': limits\[1\] must be \(low, high\)"),
+])
+def test_invalid_joints_name_the_joint(kwargs, match):
+    with pytest.raises(ModelError, match=match):
+        Joint("jb", **{"parent": "a", "child": "b", **kwargs})
+
+
+def test_joint_limits_are_normalised():
+    assert Joint("j", None, "b", limits=[np.int64(-1), 2]).limits == (-1.0, 2.0)
+    two = vdad.joints.revolute() + vdad.joints.prismatic()
+    j = Joint("j", None, "b", "composite", stages=two, limits=[None, [0, 0.5]])
+    assert j.limits == (None, (0.0, 0.5))
 
 
 @pytest.mark.parametrize("joint, match", [
-    (Joint("jb", "a", "b", axis=(0, 0, 0)), "joint 'jb': zero axis"),
-    (Joint("jb", "a", "b", axis=(0, np.nan, 1)), "joint 'jb': axis or anchor is not finite"),
     (Joint("jb", "zz", "b"), "joint 'jb': unknown parent body 'zz'"),
     (Joint("jb", "a", "zz"), "joint 'jb': unknown child body 'zz'"),
-    (Joint("jb", "a", "b", kind="hinge3"), "joint 'jb': unknown kind 'hinge3'"),
-    (Joint("jb", "a", "b", damping=-1.0), "joint 'jb': stiffness and damping"),
-    (Joint("jb", "a", "b", placement=Pose(rotation=np.diag([1.0, 1.0, -1.0]))),
-     "joint 'jb': placement rotation"),
-    (Joint("jb", "a", "b", kind="composite"), "joint 'jb': a composite joint needs stages"),
 ])
-def test_invalid_joints_name_the_joint(joint, match):
+def test_joints_that_name_unknown_bodies(joint, match):
     bodies, joints = two_links()
     with pytest.raises(ModelError, match=match):
         Model(bodies, [joints[0], joint])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(rotation=np.diag([1.0, 1.0, -1.0])), "Pose rotation is not a proper rotation"),
+    (dict(rotation=(0, 0, 0, 0)), "Pose rotation: the quaternion .* cannot be normalised"),
+    (dict(rotation=np.eye(2)), "Pose rotation must be a 3x3 matrix or a quaternion"),
+    (dict(rotation="identity"), "Pose rotation must be a real number.*string"),
+    (dict(translation=(0, 0)), r"Pose translation must have shape \(3,\)"),
+    (dict(translation=(0, np.inf, 0)), "Pose translation has non-finite"),
+])
+def test_invalid_poses(kwargs, match):
+    with pytest.raises(ModelError, match=match):
+        Pose(**kwargs)
+
+
+@pytest.mark.parametrize("args, kwargs, match", [
+    (("sphere",), {}, r"a sphere geom takes size = \(radius,\), got \(\)"),
+    (("capsule", (-1, 1)), {}, "a capsule geom's size .* must be positive"),
+    (("box", (1, 1)), {}, "a box geom takes size"),
+    (("box", "abc"), {}, "box geom size must be a real number"),
+    (("cone", (1,)), {}, "unknown geometry kind 'cone'"),
+    (("mesh",), {}, "a mesh geom needs mesh="),
+    (("sphere", (1,)), dict(pose=(0, 0, 0)), "geom pose must be a vdad.Pose"),
+    (("sphere", (1,)), dict(rgba=(1, 0, 0, 2)), r"geom rgba must be 4 numbers in \[0, 1\]"),
+])
+def test_invalid_geoms(args, kwargs, match):
+    with pytest.raises(ModelError, match=match):
+        vdad.Geom(*args, **kwargs)
+
+
+@pytest.mark.parametrize("bodies, joints, match", [
+    ([{"name": "b", "mass": 1}], [Joint("j", None, "b")], r"bodies\[0\] must be a vdad.Body, "
+     "got dict"),
+    ([Body("b", 1.0)], None, "joints must be a sequence of vdad.Joint, got None"),
+    ([Body("b", 1.0)], [("j", None, "b")], r"joints\[0\] must be a vdad.Joint, got tuple"),
+    ("b", [Joint("j", None, "b")], "bodies must be a sequence of vdad.Body"),
+])
+def test_models_take_bodies_and_joints(bodies, joints, match):
+    with pytest.raises(ModelError, match=match):
+        Model(bodies, joints)
 
 
 def test_duplicate_names():
@@ -85,8 +180,22 @@ def test_bad_gravity_and_q_spring():
     bodies, joints = two_links()
     with pytest.raises(ModelError, match="gravity"):
         Model(bodies, joints, gravity=(0, 0))
-    with pytest.raises(ModelError, match="q_spring must be 2 finite numbers"):
+    with pytest.raises(ModelError, match="gravity must be a real number.*string"):
+        Model(bodies, joints, gravity="down")
+    with pytest.raises(ModelError, match=r"q_spring must have shape \(2,\)"):
         Model(bodies, joints, q_spring=[0.0])
+
+
+def test_zero_quaternions_are_refused():
+    ball = [Joint("j", None, "b", "spherical", stiffness=1.0)]
+    with pytest.raises(ModelError, match=r"q_spring\[0:4\], the quaternion of joint 'j', is "
+                       "zero"):
+        Model([Body("b", 1.0)], ball, q_spring=[0, 0, 0, 0])
+    model = Model([Body("b", 1.0)], ball)
+    with pytest.raises(vdad.InputError, match=r"q0\[0:4\], the quaternion of joint 'j'"):
+        vdad.Simulator(model, q0=[0, 0, 0, 0])
+    with pytest.raises(vdad.InputError, match="the quaternion of joint 'j', is zero"):
+        vdad.forward_dynamics(model, [0, 0, 0, 0], np.zeros(3))
 
 
 def test_geometry_to_trimesh():

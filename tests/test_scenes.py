@@ -1,47 +1,99 @@
 """The paper's scenes end to end (Kim 2008 §6.1): every scene with every method,
 seeded repeatability, and the behaviour each scene must show."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from vdad import Simulator
 from vdad.errors import InputError
 from vdad.quantities import kinetic_energy
 from vdad.scenes import SCENES, dog_puppet, falling_character, hanging_dogs, pendulum
 from vdad.scenes.dogs import LEGS, PUPPET_PHASES, StickPath
+from vdad.simulator import DEFAULTS, LOD_PIXELS, METHODS, lod_distance
 
 SMALL = {"pendulum": lambda: pendulum(n_bodies=20),
          "dog_puppet": dog_puppet,
          "hanging_dogs": lambda: hanging_dogs(n_dogs=4, columns=2),
          "falling_character": falling_character}
-THRESHOLD = {"adaptive": 1e-6, "view-bvh": 0.01, "view-oq": 0.01}
-
-
-def options(method):
-    extra = {"view-oq": {"counting": "merged"}}.get(method, {})
-    return {} if method == "dca" else {"threshold": THRESHOLD[method], **extra}
+STEPS = 100
 
 
 def test_every_scene_is_registered():
     assert set(SMALL) == set(SCENES)
 
 
-@pytest.mark.parametrize("method", ["dca", "adaptive", "view-bvh", "view-oq"])
+@pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("name", sorted(SMALL))
-def test_scene_runs_with_every_method(name, method):
+def test_scene_runs_with_every_method_and_its_defaults(name, method):
+    """Nothing but the method: the scene's calibrated defaults, then the generic ones."""
     scene = SMALL[name]()
     model = scene.model
     assert scene.q0.shape == (model.nq,) and scene.qd0.shape == (model.nv,)
     assert np.all(np.isfinite(scene.q0)) and scene.camera is not None
     assert scene.description and scene.params
-    sim = scene.simulator(method=method, **options(method))
-    sim.step(200)
+    sim = scene.simulator(method=method)
+    mine = scene.defaults.get(method, {})
+    generic = {k: v for k, v in DEFAULTS.get(method, {}).items() if not callable(v)}
+    assert sim.options == {} if method == "dca" else \
+        sim.options.items() >= {**generic, **mine}.items()
+    sim.step(STEPS)
     assert np.all(np.isfinite(sim.q)) and np.all(np.isfinite(sim.qd))
-    assert sim.t == pytest.approx(200 * scene.dt)
+    assert sim.t == pytest.approx(STEPS * scene.dt)
     moved = np.abs(sim.q - scene.q0).max()
     assert moved > 1e-4                                  # the forces act
     if method != "dca":
         active = [s.active_joints for s in sim.history]
-        assert len(active) == 200 and 0 < np.mean(active) <= model.nb
+        assert len(active) == STEPS and 0 < np.mean(active) <= model.nb
+
+
+def test_scene_defaults_give_way_to_the_callers_options():
+    scene = falling_character()
+    assert scene.defaults["adaptive"]["threshold"] != 1e-3
+    assert scene.simulator(method="adaptive", threshold=1e-3).options["threshold"] == 1e-3
+    budget = scene.simulator(method="adaptive", budget=5).options
+    assert budget["budget"] == 5 and "threshold" not in budget
+    assert scene.simulator(method="adaptive", threshold=None).options["threshold"] == \
+        scene.defaults["adaptive"]["threshold"]                  # None: not given
+    far = scene.simulator(method="lod-distance", distance=50.0).options
+    assert far["distance"] == 50.0 and far["threshold"] == 0.0
+
+
+def test_generic_lod_distance_from_the_camera():
+    """Without a scene's default: the distance at which the model's largest
+    articulated body (the straight 2 m chain) spans LOD_PIXELS pixels."""
+    scene = pendulum(n_bodies=20)
+    assert "lod-distance" not in scene.defaults
+    sim = Simulator(scene.model, scene.q0, method="lod-distance", camera=scene.camera)
+    size = 20 * 0.1                                     # capsules end at the joints
+    assert sim.options["distance"] == pytest.approx(size * scene.camera.focal / LOD_PIXELS,
+                                                    rel=1e-6)
+    assert lod_distance(scene.model, scene.q0, scene.camera, pixels=8) == pytest.approx(
+        sim.options["distance"] / 2)
+
+
+@pytest.mark.parametrize("method, options, message", [
+    ("adaptive", {"threshhold": 1e-5}, "unknown option threshhold=; method='adaptive' takes "
+     "threshold=, budget=, weights="),
+    ("dca", {"threshold": 1e-5}, "threshold= applies to method='adaptive', method='view-bvh' "
+     "or method='view-oq', not to method='dca'"),
+    ("dca", {"volumes": "obb"}, "unknown option volumes=; method='dca' takes no options"),
+    ("view-oq", {"volume": "obb"}, "volume= applies to method='view-bvh', not to "
+     "method='view-oq'"),
+    ("sleeping", {"budget": 3}, "(a baseline runs at threshold 0)"),
+])
+def test_method_option_errors(method, options, message):
+    scene = pendulum(n_bodies=3)
+    with pytest.raises(InputError) as exc:
+        scene.simulator(method=method, **options)
+    assert message in str(exc.value)
+
+
+def test_unknown_scene_default_method():
+    scene = pendulum(n_bodies=3)
+    with pytest.raises(InputError, match="unknown methods"):
+        replace(scene, defaults={"adaptiv": {"threshold": 1.0}})
 
 
 def test_the_paper_sizes():
@@ -54,8 +106,9 @@ def test_the_paper_sizes():
 
 
 def test_hundred_dogs_step():
-    sim = hanging_dogs().simulator(method="adaptive", threshold=1e-6)
-    sim.step(3)
+    sim = hanging_dogs().simulator(method="view-oq")             # the scene's defaults
+    assert sim.options["threshold"] == hanging_dogs().defaults["view-oq"]["threshold"]
+    sim.step(2)
     assert np.all(np.isfinite(sim.q))
 
 

@@ -93,7 +93,8 @@ def test_bad_force_stops_with_the_step():
     sim = scene.simulator(dt=1e-3)
     sim.controller = broken
     with pytest.raises(vdad.SimulationError,
-                       match=r"step 6 .*tau has non-finite entries at indices \[1\]"):
+                       match=r"step 6 .*controller\(t, q, qd\) has non-finite entries at "
+                       r"indices \[1\]"):
         sim.step(10)
     assert sim.step_count == 5
 
@@ -115,10 +116,90 @@ def test_simulator_rejects_bad_options():
         scene.simulator(method="fast")
     with pytest.raises(vdad.InputError, match="unknown integrator 'euler'"):
         scene.simulator(integrator="euler")
-    with pytest.raises(vdad.InputError, match="dt must be a positive"):
+    with pytest.raises(vdad.InputError, match="dt must be positive"):
         scene.simulator(dt=0.0)
     with pytest.raises(vdad.InputError, match="n_bodies must be a positive integer"):
         pendulum(0)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(dt="0.01"), "dt must be a real number.*string"),
+    (dict(dt=None), "dt must be a real number.*got None"),
+    (dict(dt=[0.1, 0.2]), "dt must be a single number"),
+    (dict(dt=np.nan), "dt must be finite"),
+    (dict(controller=3), r"controller must be a callable \(t, q, qd\) -> tau"),
+    (dict(external="f"), r"external must be a callable \(t, q, qd\) -> f_ext"),
+    (dict(q0=np.full(3, np.nan)), "q0 has non-finite entries"),
+    (dict(qd0="abc"), "qd0 must be a real number"),
+])
+def test_simulator_rejects_bad_input(kwargs, match):
+    with pytest.raises(vdad.InputError, match=match):
+        vdad.Simulator(pendulum(3).model, **kwargs)
+    with pytest.raises(vdad.InputError, match=match):
+        pendulum(3).simulator(**kwargs)                  # a scene's own values give way
+
+
+def test_scene_simulators_take_other_states_and_forces():
+    scene = pendulum(3)
+    sim = scene.simulator(q0=[0.1, 0.2, 0.3], controller=lambda t, q, qd: -qd)
+    np.testing.assert_array_equal(sim.q, [0.1, 0.2, 0.3])
+    assert sim.controller is not scene.controller and sim.step(3).step_count == 3
+
+
+@pytest.mark.parametrize("model", [None, "pendulum", pendulum(3)])
+def test_models_must_be_models(model):
+    with pytest.raises(vdad.InputError, match="model must be a vdad.Model, got"):
+        vdad.Simulator(model)
+    with pytest.raises(vdad.InputError, match="model must be a vdad.Model, got"):
+        vdad.forward_dynamics(model, [0.0], [0.0])
+
+
+@pytest.mark.parametrize("n, match", [
+    ("abc", "n must be an integer >= 0, got 'abc'"), (np.nan, "n must be an integer >= 0"),
+    (-5, "n must be an integer >= 0, got -5"), (2.7, "n must be an integer >= 0, got 2.7"),
+    (True, "n must be an integer >= 0, got True"),
+])
+def test_step_counts_are_whole_numbers(n, match):
+    sim = pendulum(3).simulator()
+    with pytest.raises(vdad.InputError, match=match):
+        sim.step(n)
+    assert sim.step_count == 0
+    assert sim.step(np.int64(2)).step(0).step(3.0).step_count == 5
+
+
+def test_trees_and_data_of_another_model_are_refused():
+    from vdad.dca import make_data
+
+    small, big = pendulum(3).model, pendulum(5).model
+    q, qd = small.q_neutral, np.zeros(small.nv)
+    with pytest.raises(vdad.InputError, match="tree was built for model 'pendulum5' .*differs "
+                                              "from model 'pendulum3'"):
+        vdad.Simulator(small, tree=vdad.AssemblyTree.balanced(big))
+    with pytest.raises(vdad.InputError, match="tree was built for model 'pendulum5'"):
+        vdad.forward_dynamics(small, q, qd, tree=vdad.AssemblyTree.balanced(big))
+    with pytest.raises(vdad.InputError, match="tree must be a vdad.AssemblyTree, got str"):
+        vdad.forward_dynamics(small, q, qd, tree="balanced")
+    with pytest.raises(vdad.InputError, match="data was allocated for another assembly tree"):
+        vdad.forward_dynamics(small, q, qd, data=make_data(vdad.AssemblyTree.balanced(big)))
+    with pytest.raises(vdad.InputError, match="data must be vdad.dca.DCAData"):
+        vdad.forward_dynamics(small, q, qd, data={})
+    # a tree of an equal model built again (same topology) is fine, and gives the same result
+    again = pendulum(3).model
+    tree = vdad.AssemblyTree.sequential(again)
+    np.testing.assert_allclose(vdad.forward_dynamics(small, pendulum(3).q0, qd, tree=tree),
+                               vdad.forward_dynamics(small, pendulum(3).q0, qd), atol=1e-12)
+
+
+@pytest.mark.parametrize("inputs, match", [
+    (dict(qd=np.full(5, 1e200)), r"overflowed .*joint 'joint\d'.*\|qd\| up to 1e\+200"),
+    (dict(tau=np.full(5, 1e308)), r"overflowed .*\|tau\| up to 1e\+308"),
+])
+def test_finite_inputs_that_overflow_are_an_error(inputs, match):
+    model = pendulum(5, axes="alternate").model
+    args = dict(q=np.full(5, 0.3), qd=np.zeros(5), tau=None)
+    args.update(inputs)
+    with np.errstate(all="ignore"), pytest.raises(vdad.InputError, match=match):
+        vdad.forward_dynamics(model, **args)
 
 
 def test_seeded_runs_repeat_exactly():

@@ -5,7 +5,7 @@ rigidify what the viewer cannot see and approach the full DCA in full view."""
 import numpy as np
 import pytest
 
-from vdad import Simulator
+from vdad import Body, Model, Simulator
 from vdad.bounding import areas, body_volumes, place
 from vdad.camera import Camera
 from vdad.errors import InputError, SimulationError
@@ -106,8 +106,8 @@ def test_view_method_errors():
     scene = pendulum(n_bodies=5)
     with pytest.raises(InputError, match="needs a camera"):
         Simulator(scene.model, method="view-bvh", threshold=1e-3)
-    with pytest.raises(InputError, match=r"options \['volume'\] do not apply to method "
-                                         "'adaptive'"):
+    with pytest.raises(InputError, match=r"volume= applies to method='view-bvh', not to "
+                                         r"method='adaptive'"):
         scene.simulator(method="adaptive", threshold=1e-3, volume="obb")
     with pytest.raises(InputError, match="unknown bounding volume"):
         scene.simulator(method="view-bvh", threshold=1e-3, volume="cone")
@@ -123,6 +123,16 @@ def test_view_method_errors():
                     coverage=lambda t, q, ad: np.ones(3))
     with pytest.raises(SimulationError, match="coverage must return"):
         sim.step()
+
+
+@pytest.mark.parametrize("method", ["view-bvh", "view-oq"])
+def test_view_methods_need_geometry(method):
+    """A model without geometry covers no pixels: every joint would freeze."""
+    bodies = [Body(b.name, b.mass, b.com, b.inertia) for b in pendulum(3).model.bodies]
+    bare = Model(bodies, pendulum(3).model.joints, name="bare")
+    with pytest.raises(InputError, match="view-dependent coverage needs geometry, but no body "
+                                         "of model 'bare' has any"):
+        Simulator(bare, method=method, threshold=1e-3, camera=pendulum(3).camera)
 
 
 def test_camera_checks_and_paths():

@@ -41,6 +41,7 @@ import numpy as np
 
 from . import joints as J
 from .assembly import GROUND, TRASH, LeafPlan, Level
+from .checks import check_callable, check_count, check_real, check_vector, check_wrenches
 from .dca import (
     DCAData,
     MetricData,
@@ -51,7 +52,7 @@ from .dca import (
     metric_value,
     rigid_leaves,
 )
-from .dynamics import check_wrenches, default_tree, passive_forces
+from .dynamics import default_tree, passive_forces
 from .errors import InputError
 from .hybrid import RigidGroups, group_wrench, momentum_at_com
 from .kinematics import body_poses, joint_kinematics, joint_set, kinematics, ranges
@@ -145,12 +146,6 @@ def resolve_weights(model, weights, name="weights"):
     return w
 
 
-def _real(x):
-    """``x`` is a finite real number (not a bool, string or array)."""
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(
-        x, bool) and bool(np.isfinite(x))
-
-
 def _padded(js, w):
     """Diagonal weights ``w`` (nv,) of the joints of ``js``, (k, 6) zero-padded."""
     return np.append(w[js.v_index], 0.0)[js.dof_index]
@@ -187,24 +182,20 @@ class AdaptiveDynamics:
                  metric="coefficients", coverage=None, coverage_every=1):
         if (threshold is None) == (budget is None):
             raise InputError("adaptive dynamics needs exactly one of threshold= or budget=")
-        if threshold is not None and not (_real(threshold) and threshold >= 0):
-            raise InputError(f"threshold must be a finite number >= 0, got {threshold!r}")
-        if budget is not None and not (_real(budget) and int(budget) == budget >= 0):
-            raise InputError(f"budget must be a whole number of joints >= 0, got {budget!r}")
-        if not (_real(kappa) and kappa >= 1):
+        if threshold is not None:
+            threshold = float(check_real("threshold", threshold, nonnegative=True))
+        if budget is not None:
+            budget = check_count("budget", budget)
+        kappa = float(check_real("kappa", kappa))
+        if kappa < 1:
             raise InputError(f"kappa must be >= 1, got {kappa!r}")
-        if not (_real(dwell) and int(dwell) == dwell >= 0):
-            raise InputError(f"dwell must be a whole number of steps >= 0, got {dwell!r}")
+        dwell = check_count("dwell", dwell, minimum=0)
         if policy not in POLICIES:
             raise InputError(f"unknown rigidification policy {policy!r}; choose one of {POLICIES}")
         if metric not in METRICS:
             raise InputError(f"unknown metric evaluation {metric!r}; choose one of {METRICS}")
-        if coverage is not None and not callable(coverage):
-            raise InputError(f"coverage must be a callable (t, q, adaptive) -> N_M, got "
-                             f"{type(coverage).__name__}")
-        if not (_real(coverage_every) and int(coverage_every) == coverage_every >= 1):
-            raise InputError(f"coverage_every must be a whole number of steps >= 1, got "
-                             f"{coverage_every!r}")
+        check_callable("coverage", coverage, "(t, q, adaptive) -> N_M")
+        coverage_every = check_count("coverage_every", coverage_every)
         self.coverage, self.coverage_every = coverage, int(coverage_every)
         self.predictive = metric == "coefficients"
         self.model = model
@@ -440,15 +431,13 @@ class AdaptiveDynamics:
             q_full, qd_full = self._q.copy(), self._qd.copy()
             q_full[js.q_index], qd_full[js.v_index] = q_a, qd_a
             if self._controller is not None:
-                tau_full = self._controller(t, q_full, qd_full)
-                tau_full = np.asarray(tau_full, float)
-                if tau_full.shape != (model.nv,):
-                    raise InputError(f"the controller must return ({model.nv},) forces, got "
-                                     f"shape {tau_full.shape}")
+                tau_full = check_vector("controller(t, q, qd)",
+                                        self._controller(t, q_full, qd_full), model.nv)
                 tau = tau + tau_full[js.v_index]
                 self._tau_full = tau_full
             if self._external is not None:
-                f_ext = check_wrenches(model, self._external(t, q_full, qd_full))
+                f_ext = check_wrenches(model, self._external(t, q_full, qd_full),
+                                       "external(t, q, qd)")
         st.force_update += self.groups.update_forces(f_ext, self.active)
         t1 = time.perf_counter()
         st.times["forces"] += t1 - t0

@@ -360,3 +360,19 @@ class AssemblyTree:
     def __repr__(self):
         return (f"AssemblyTree(bodies={self.model.nb}, depth={self.depth}, "
                 f"max_ports={max(len(p) for p in self.ports)})")
+
+
+def check_tree(model, tree):
+    """``tree`` checked to be an :class:`AssemblyTree` of ``model`` (built for it,
+    or for a model of the same topology and joint dofs), or an InputError."""
+    if not isinstance(tree, AssemblyTree):
+        raise InputError(f"tree must be a vdad.AssemblyTree, got {type(tree).__name__}")
+    other = tree.model
+    if other is not model and not (
+            other.nb == model.nb and np.array_equal(other.parent, model.parent)
+            and np.array_equal(other.nv_joint, model.nv_joint)
+            and np.array_equal(other.nq_joint, model.nq_joint)):
+        raise InputError(f"tree was built for model {other.name!r} ({other.nb} bodies), whose "
+                         f"topology differs from model {model.name!r} ({model.nb} bodies); "
+                         f"build it with AssemblyTree.balanced(model)")
+    return tree

@@ -21,7 +21,7 @@ import numpy as np
 
 from .assembly import AssemblyTree
 from .camera import camera_at, check_path
-from .dynamics import check_real
+from .checks import check_real
 from .kinematics import plan
 
 

@@ -66,61 +66,107 @@ def _scene_options(parser):
                        help="camera and counting resolution WIDTHxHEIGHT (default 320x240)")
 
 
+# the method options that make_simulator gives Scene.simulator when set: each is the
+# keyword of the CLI option of the same name (--coverage-every: coverage_every)
+SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "dwell", "kappa", "volume",
+                     "estimate", "counting", "coverage_every", "distance", "sleep_speed",
+                     "sleep_time")
+
+
+def _flag(name):
+    """The CLI option of a Python keyword: ``coverage_every`` -> ``--coverage-every``."""
+    return "--" + name.replace("_", "-")
+
+
+def in_cli_terms(message):
+    """An error message of :class:`~vdad.Simulator` (or of the adaptive dynamics
+    it builds) in the words of the command line: ``name=`` and a leading ``name``
+    become ``--name`` for the options of :data:`SIMULATOR_OPTIONS`, and
+    ``method='m'`` becomes ``--method m``."""
+    import re
+
+    names = "|".join(SIMULATOR_OPTIONS)
+    message = re.sub(r"\bmethod='([\w-]+)'", r"--method \1", message)
+    message = re.sub(rf"(?<![\w-])({names})=", lambda m: _flag(m[1]), message)
+    return re.sub(rf"^({names})\b(?![=-])", lambda m: _flag(m[1]), message)
+
+
 def _method_options(parser):
-    """Dynamics method options (shared by ``run`` and ``render``)."""
+    """Dynamics method options (shared by ``run`` and ``render``). Those left out
+    take the scene's calibrated defaults (``docs/scenes.md``), then the generic
+    ones of :data:`vdad.simulator.DEFAULTS` and of AdaptiveDynamics."""
     from .adaptive import METRICS, POLICIES
     from .bounding import VOLUMES
     from .integrators import INTEGRATORS
-    from .simulator import METHODS
+    from .simulator import ADAPTIVE_DEFAULTS, DEFAULTS, METHODS
     from .visibility import ESTIMATES
+
+    def default(name, method=None):
+        value = DEFAULTS[method][name] if method else ADAPTIVE_DEFAULTS[name]
+        return f"{value:g}" if isinstance(value, float) else value
 
     parser.add_argument("--method", choices=METHODS, default="dca",
                         help="dynamics method: exact DCA, adaptive dynamics, or view-dependent "
                         "adaptive dynamics with coverage from bounding volumes (view-bvh) or "
                         "rendered occlusion counts (view-oq, needs EGL), or a game-engine "
                         "baseline: whole bodies rigid beyond --distance (lod-distance) or "
-                        "asleep when slow (sleeping) (default dca)")
+                        "asleep when slow (sleeping) (default dca); every method runs with "
+                        "the scene's defaults (docs/scenes.md), shown in the summary")
     parser.add_argument("--integrator", choices=sorted(INTEGRATORS), default="semi-implicit",
                         help="time integrator (default semi-implicit Euler)")
     adaptive = parser.add_argument_group(
-        "adaptive dynamics", "with --method adaptive, view-bvh or view-oq: give --threshold "
-        "or --budget (view methods: in pixels times displacement per step)")
+        "adaptive dynamics", "with --method adaptive, view-bvh or view-oq: --threshold or "
+        "--budget (view methods: in pixels times displacement per step; default: the "
+        "scene's threshold, docs/scenes.md); the other options also apply to the baselines")
     adaptive.add_argument("--threshold", type=_nonnegative_float,
                           help="drop accelerations whose score (weighted displacement per "
-                          "step) is below this; 0 reproduces the DCA")
-    adaptive.add_argument("--budget", type=_nonnegative_int,
-                          help="accelerate only this many joints (max-heap on the metric)")
-    adaptive.add_argument("--policy", choices=POLICIES, default="momentum",
+                          "step) is below this; 0 reproduces the DCA (default: the scene's; "
+                          f"else {default('threshold', 'adaptive')} for adaptive, "
+                          f"{default('threshold', 'view-bvh')} for view-bvh and "
+                          f"{default('threshold', 'view-oq')} for view-oq)")
+    adaptive.add_argument("--budget", type=_positive_int,
+                          help="accelerate only this many joints (max-heap on the metric), "
+                          "instead of a threshold")
+    adaptive.add_argument("--policy", choices=POLICIES,
                           help="velocities of newly rigid joints: momentum-conserving "
-                          "locking impulse, or zeroed as in the paper (default momentum)")
-    adaptive.add_argument("--metric", choices=METRICS, default="coefficients",
+                          "locking impulse, or zeroed as in the paper (default "
+                          f"{default('policy')})")
+    adaptive.add_argument("--metric", choices=METRICS,
                           help="predict the metric from (T16)-(T18), or sum it from computed "
-                          "accelerations (same values; default coefficients)")
-    adaptive.add_argument("--dwell", type=_nonnegative_int, default=10,
-                          help="steps a joint keeps a new state (default 10)")
-    adaptive.add_argument("--kappa", type=float, default=4.0,
-                          help="hysteresis: rigidify below threshold/kappa (default 4)")
+                          f"accelerations (same values; default {default('metric')})")
+    adaptive.add_argument("--dwell", type=_nonnegative_int,
+                          help=f"steps a joint keeps a new state (default {default('dwell')})")
+    adaptive.add_argument("--kappa", type=float,
+                          help="hysteresis: rigidify below threshold/kappa (default "
+                          f"{default('kappa')})")
     view = parser.add_argument_group("view-dependent methods",
                                      "with --method view-bvh or view-oq")
-    view.add_argument("--volume", choices=VOLUMES, default="sphere",
-                      help="bounding volume of view-bvh (default sphere)")
-    view.add_argument("--estimate", choices=ESTIMATES, default="min",
+    view.add_argument("--volume", choices=VOLUMES,
+                      help="bounding volume of view-bvh (default "
+                      f"{default('volume', 'view-bvh')})")
+    view.add_argument("--estimate", choices=ESTIMATES,
                       help="view-bvh coverage: min of the node's and its bodies' areas "
-                      "(eq. 7), the node's (eq. 5) or the bodies' (eq. 6) (default min)")
-    view.add_argument("--counting", choices=("queries", "merged"), default="queries",
+                      "(eq. 7), the node's (eq. 5) or the bodies' (eq. 6) (default "
+                      f"{default('estimate', 'view-bvh')})")
+    view.add_argument("--counting", choices=("queries", "merged"),
                       help="view-oq counts: occlusion queries (the paper's) or one merged "
-                      "id buffer (same counts, faster) (default queries)")
-    view.add_argument("--coverage-every", type=_positive_int, default=1,
-                      help="steps between coverage evaluations (default 1: every step)")
+                      "id buffer (same counts, faster) (default "
+                      f"{default('counting', 'view-oq')})")
+    view.add_argument("--coverage-every", type=_positive_int,
+                      help="steps between coverage evaluations (default "
+                      f"{default('coverage_every')}: every step)")
     base = parser.add_argument_group("game-engine baselines",
                                      "with --method lod-distance or sleeping (threshold 0)")
     base.add_argument("--distance", type=_positive_float,
                       help="lod-distance: articulated bodies farther than this (m) from the "
-                      "camera are rigid")
-    base.add_argument("--sleep-speed", type=_positive_float, default=0.05,
-                      help="sleeping: speed below which a body may sleep (rad/s; default 0.05)")
-    base.add_argument("--sleep-time", type=_positive_float, default=0.5,
-                      help="sleeping: seconds slow before it sleeps (default 0.5)")
+                      "camera are rigid (default: the scene's; else the distance at which "
+                      "the largest articulated body spans a few pixels, docs/scenes.md)")
+    base.add_argument("--sleep-speed", type=_positive_float,
+                      help="sleeping: speed below which a body may sleep (rad/s; default "
+                      f"{default('sleep_speed', 'sleeping')})")
+    base.add_argument("--sleep-time", type=_positive_float,
+                      help="sleeping: seconds slow before it sleeps (default "
+                      f"{default('sleep_time', 'sleeping')})")
 
 
 def build_parser():
@@ -244,35 +290,35 @@ def make_scene(args, **override):
 
 
 def make_simulator(scene, args):
-    """The simulator of ``scene`` with the method options of ``args``."""
-    from .simulator import BASELINES
+    """The simulator of ``scene`` with the method options of ``args`` that were
+    given (the others: the scene's and the generic defaults; ``sim.options`` holds
+    those used). An error in them is an InputError in the CLI's words
+    (:func:`in_cli_terms`)."""
+    options = {k: getattr(args, k) for k in SIMULATOR_OPTIONS if getattr(args, k) is not None}
+    try:
+        return scene.simulator(method=args.method, integrator=args.integrator, **options)
+    except InputError as exc:
+        raise type(exc)(in_cli_terms(str(exc))) from exc
 
-    options = {}
-    if args.method in ("dca", *BASELINES) and (args.threshold is not None
-                                               or args.budget is not None):
-        raise InputError("--threshold and --budget need --method adaptive, view-bvh or view-oq")
-    if args.method != "dca":
-        options = dict(policy=args.policy, metric=args.metric, dwell=args.dwell,
-                       kappa=args.kappa)
-    if args.method not in ("dca", *BASELINES):
-        options.update(threshold=args.threshold, budget=args.budget)
-    if args.method == "lod-distance":
-        options["distance"] = args.distance
-    elif args.method == "sleeping":
-        options.update(sleep_speed=args.sleep_speed, sleep_time=args.sleep_time)
-    if args.method == "view-bvh":
-        options.update(volume=args.volume, estimate=args.estimate,
-                       coverage_every=args.coverage_every)
-    elif args.method == "view-oq":
-        options.update(counting=args.counting, coverage_every=args.coverage_every)
-    return scene.simulator(method=args.method, integrator=args.integrator, **options), options
+
+def describe_options(method, options):
+    """The method's options of ``sim.options`` that the summary line shows: the
+    threshold or budget (not of a baseline) and the method's own, e.g.
+    ``"threshold 0.01, volume sphere, estimate min"``."""
+    from .simulator import BASELINES, EXCLUSIVE, METHOD_OPTIONS
+
+    keys = (() if method in BASELINES else EXCLUSIVE) + METHOD_OPTIONS.get(method, ())
+    shown = [(k, options[k]) for k in keys if k in options]
+    return ", ".join(f"{k.replace('_', ' ')} " + (f"{v:g}" if isinstance(v, float) else
+                                                  str(v)) + (" m" if k == "distance" else "")
+                     for k, v in shown)
 
 
 def run_scene(args):
     from tqdm import tqdm
 
     scene = make_scene(args)
-    sim, options = make_simulator(scene, args)
+    sim = make_simulator(scene, args)
     chunk = max(1, args.steps // 100)
     start = time.perf_counter()
     with tqdm(total=args.steps, desc=f"{args.scene} ({scene.model.nb} bodies)", unit="step",
@@ -289,18 +335,19 @@ def run_scene(args):
         "bodies": scene.model.nb, "joints": scene.model.nb, "dofs": scene.model.nv,
         "steps": args.steps, "dt": sim.dt, "simulated_time": sim.t,
         "ms_per_step": 1e3 * elapsed / args.steps, "final_q": sim.q.tolist(),
-        "final_qd": sim.qd.tolist(), "params": scene.params,
+        "final_qd": sim.qd.tolist(), "params": scene.params, "options": sim.options,
     }
     if sim.history:
         summary.update(adaptive_summary(sim.history))
-        summary["adaptive"] = {k: v for k, v in options.items() if v is not None}
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(summary, fh, indent=1)
     active = (f", {summary['active_joints_mean']:.1f} of {scene.model.nb} joints active on "
               f"average" if sim.history else "")
+    shown = describe_options(args.method, sim.options)
     print(f"{scene.description}: {args.steps} steps of {sim.dt} s with {args.method} "
-          f"({args.integrator}), {summary['ms_per_step']:.3f} ms per step{active}"
+          f"({shown + '; ' if shown else ''}{args.integrator}), {summary['ms_per_step']:.3f} "
+          f"ms per step{active}"
           + (f"; summary in {args.json}" if args.json else ""))
     return 0
 
@@ -325,7 +372,7 @@ def render_scene(args):
     runs = []
     for d in distances:
         scene = make_scene(args, **({} if d is None else {"camera_distance": d}))
-        sim, _ = make_simulator(scene, args)
+        sim = make_simulator(scene, args)
         runs.append((d, scene, sim))
     first = runs[0][1]
     every = args.every or max(1, round(1 / (30 * runs[0][2].dt)))

@@ -28,6 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .errors import InputError
 from .kinematics import plan
 from .spatial import cross3, motion_transform, mv
 
@@ -72,6 +73,21 @@ def make_data(tree) -> DCAData:
     return DCAData(np.zeros((tree.n_blocks, 6, 6)), np.zeros((tree.n_slots, 6)),
                    np.zeros((model.nb + 1, 6)), np.zeros(model.nv + 1),
                    [None] * len(tree.levels))
+
+
+def check_data(tree, data):
+    """``data`` checked to be :class:`DCAData` allocated for ``tree`` (by
+    :func:`make_data`), or an InputError."""
+    if not isinstance(data, DCAData):
+        raise InputError(f"data must be vdad.dca.DCAData from make_data(tree), got "
+                         f"{type(data).__name__}")
+    model = tree.model
+    if (len(data.Phi) != tree.n_blocks or len(data.b) != tree.n_slots
+            or len(data.f_J) != model.nb + 1 or len(data.qdd) != model.nv + 1
+            or len(data.levels) != len(tree.levels)):
+        raise InputError(f"data was allocated for another assembly tree than this one (of "
+                         f"model {model.name!r}); allocate it with make_data(tree)")
+    return data
 
 
 def body_wrenches(model, kin, f_ext):

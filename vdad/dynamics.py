@@ -13,73 +13,12 @@ import numpy as np
 
 from . import dca
 from . import joints as J
-from .assembly import AssemblyTree
+from .assembly import AssemblyTree, check_tree
+from .checks import check_vector, check_wrenches
 from .errors import InputError
 from .kinematics import as_joint_set, kinematics
+from .model import check_configuration, check_model
 from .spatial import quat_log, quat_mul
-
-
-def check_vector(name, x, n, allow_none=False):
-    """``x`` as a finite float vector of length ``n``, or a clear InputError."""
-    if x is None and allow_none:
-        return None
-    try:
-        a = np.asarray(x, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be numeric, got {type(x).__name__}") from None
-    if a.shape != (n,):
-        raise InputError(f"{name} must have shape ({n},), got {a.shape}")
-    bad = np.flatnonzero(~np.isfinite(a))
-    if len(bad):
-        raise InputError(f"{name} has non-finite entries at indices {bad[:5].tolist()}")
-    return a
-
-
-def check_real(name, value, shape=None, positive=False, nonnegative=False):
-    """``value`` as a finite float array (broadcast to ``shape`` if given; a
-    scalar stays 0-d), optionally ``> 0`` or ``>= 0``, or an InputError naming
-    ``name``."""
-    try:
-        a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be numeric, got {value!r}") from None
-    if shape is not None:
-        try:
-            a = np.broadcast_to(a, shape).copy()
-        except ValueError:
-            raise InputError(f"{name} must have shape {shape} (or broadcast to it), got "
-                             f"{a.shape}") from None
-    if not np.all(np.isfinite(a)):
-        raise InputError(f"{name} must be finite, got {value}")
-    if positive and np.any(a <= 0):
-        raise InputError(f"{name} must be positive, got {value}")
-    if nonnegative and np.any(a < 0):
-        raise InputError(f"{name} must be >= 0, got {value}")
-    return a
-
-
-def check_count(name, value, minimum=1):
-    """``value`` as an int if it is a whole number ``>= minimum``, or an
-    InputError naming ``name``."""
-    a = check_real(name, value)
-    if a.ndim or a != int(a) or a < minimum:
-        what = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
-        raise InputError(f"{name} must be {what}, got {value!r}")
-    return int(a)
-
-
-def check_wrenches(model, f_ext):
-    """``f_ext`` as a finite (nb, 6) array, or None."""
-    if f_ext is None:
-        return None
-    a = np.asarray(f_ext, dtype=float)
-    if a.shape != (model.nb, 6):
-        raise InputError(f"f_ext must have shape ({model.nb}, 6) (torque about the centre of "
-                         f"mass; force, world axes), got {a.shape}")
-    bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
-    if len(bad):
-        raise InputError(f"f_ext is not finite on body {model.body_names[bad[0]]!r}")
-    return a
 
 
 def spring_displacements(space, q):
@@ -127,12 +66,28 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     :class:`~vdad.assembly.AssemblyTree` (default: balanced); data: reusable
     :class:`~vdad.dca.DCAData` work arrays of that tree.
     """
-    q = check_vector("q", q, model.nq)
+    check_model(model)
+    q = check_configuration(model, "q", q)
     qd = check_vector("qd", qd, model.nv)
     tau = check_vector("tau", tau, model.nv, allow_none=True)
     f_ext = check_wrenches(model, f_ext)
-    tree = default_tree(model) if tree is None else tree
-    data = dca.make_data(tree) if data is None else data
+    tree = default_tree(model) if tree is None else check_tree(model, tree)
+    data = dca.make_data(tree) if data is None else dca.check_data(tree, data)
+    qdd = forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data)
+    if not np.all(np.isfinite(qdd)):
+        bad = model.dof_joint[np.flatnonzero(~np.isfinite(qdd))[0]]
+        sizes = ", ".join(f"|{k}| up to {np.abs(v).max():.3g}" for k, v in
+                          (("qd", qd), ("tau", tau), ("f_ext", f_ext)) if v is not None)
+        raise InputError(f"forward dynamics overflowed double precision (non-finite "
+                         f"acceleration at joint {model.joint_names[bad]!r}); the inputs are "
+                         f"too large: {sizes}")
+    return qdd
+
+
+def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
+    """:func:`forward_dynamics` of inputs already checked (q (nq,) and qd (nv,)
+    finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``tree`` of
+    ``model`` and its ``data``): what a simulator calls every step."""
     kin = kinematics(model, q, qd)
     tau_total = passive_forces(model, q, qd)
     if tau is not None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dynamics import check_real
+from .checks import check_real
 from .errors import InputError, ModelError
 from .kinematics import body_poses, body_velocities, joint_kinematics, joint_set
 from .spatial import cross3, mv, quat_log
@@ -232,11 +232,8 @@ def contact_points(model, bodies=None):
             elif g.kind == "box":
                 signs = np.array(np.meshgrid(*[[-1.0, 1.0]] * 3)).reshape(3, -1).T
                 local, r = signs * np.asarray(g.size, float), 0.0
-            elif g.kind == "mesh":
+            else:                                   # a mesh (Geom checks the kind)
                 local, r = np.asarray(g.mesh.convex_hull.vertices, float), 0.0
-            else:
-                raise ModelError(f"body {model.body_names[b]!r}: no contact points for "
-                                 f"geometry kind {g.kind!r}")
             for x in local:
                 rows.append((b, p + R @ x, r))
     if not rows:

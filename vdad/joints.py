@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import check_real, check_vector
 from .errors import ModelError
 
 HINGE, SLIDE, BALL, TRANSLATION = 0, 1, 2, 3
@@ -68,25 +69,17 @@ def check_stage(stage: Stage, joint: str) -> Stage:
     if stage.kind not in STAGE_NAMES:
         raise ModelError(f"joint {joint!r}: unknown stage kind {stage.kind!r}; "
                          f"expected one of {STAGE_NAMES}")
-    axis = np.asarray(stage.axis, dtype=float)
-    anchor = np.asarray(stage.anchor, dtype=float)
-    if axis.shape != (3,) or anchor.shape != (3,):
-        raise ModelError(f"joint {joint!r}: axis and anchor must have 3 components")
-    if not (np.all(np.isfinite(axis)) and np.all(np.isfinite(anchor))):
-        raise ModelError(f"joint {joint!r}: axis or anchor is not finite ({axis}, {anchor})")
+    what = f"joint {joint!r}:"
+    axis = check_vector(f"{what} axis", stage.axis, 3, error=ModelError)
+    anchor = check_vector(f"{what} anchor", stage.anchor, 3, error=ModelError)
     norm = np.linalg.norm(axis)
     if stage.kind in ("hinge", "slide") and norm < 1e-12:
-        raise ModelError(f"joint {joint!r}: zero axis {tuple(axis)}")
-    for name in ("ref", "stiffness", "damping"):
-        value = getattr(stage, name)
-        if not np.isfinite(value):
-            raise ModelError(f"joint {joint!r}: {name} is not finite ({value})")
-    if stage.stiffness < 0 or stage.damping < 0:
-        raise ModelError(f"joint {joint!r}: stiffness and damping must be >= 0 "
-                         f"(got {stage.stiffness}, {stage.damping})")
+        raise ModelError(f"{what} zero axis {tuple(axis)}")
+    ref = float(check_real(f"{what} ref", stage.ref, error=ModelError))
+    gains = [float(check_real(f"{what} {name}", getattr(stage, name), nonnegative=True,
+                              error=ModelError)) for name in ("stiffness", "damping")]
     unit = tuple(axis / norm) if norm > 0 else (0.0, 0.0, 1.0)
-    return Stage(stage.kind, unit, tuple(anchor), float(stage.ref),
-                 float(stage.stiffness), float(stage.damping))
+    return Stage(stage.kind, unit, tuple(anchor), ref, *gains)
 
 
 def revolute(axis=(0, 0, 1), anchor=(0, 0, 0), stiffness=0.0, damping=0.0, ref=0.0):

@@ -17,27 +17,56 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import joints as J
+from .checks import check_real, check_vector, real_array, show
 from .errors import InputError, ModelError
 from .spatial import quat_normalize, quat_to_rot
 
 
 @dataclass(frozen=True)
 class Pose:
-    """A rigid placement: ``rotation`` (3x3 matrix or quaternion w,x,y,z) and
-    ``translation`` (3,), expressed in the parent frame."""
+    """A rigid placement: ``rotation`` (3x3 matrix or quaternion w,x,y,z; None:
+    identity) and ``translation`` (3,), expressed in the parent frame. Checked on
+    construction (a proper rotation, a nonzero quaternion, finite numbers) and
+    stored as tuples."""
 
     translation: tuple = (0.0, 0.0, 0.0)
     rotation: object = None
 
+    def __post_init__(self):
+        p = check_vector("Pose translation", self.translation, 3, error=ModelError)
+        object.__setattr__(self, "translation", tuple(p.tolist()))
+        if self.rotation is None:
+            return
+        rot = real_array("Pose rotation", self.rotation, ModelError)
+        if rot.shape == (4,):
+            norm = float(np.linalg.norm(rot)) if np.all(np.isfinite(rot)) else np.nan
+            if not 0 < norm < np.inf:
+                raise ModelError(f"Pose rotation: the quaternion {show(self.rotation)} cannot "
+                                 f"be normalised (zero or not finite)")
+        elif rot.shape == (3, 3):
+            if not np.all(np.isfinite(rot)):
+                raise ModelError(f"Pose rotation is not finite: {show(self.rotation)}")
+            if np.abs(rot.T @ rot - np.eye(3)).max() > 1e-9 or np.linalg.det(rot) < 0:
+                raise ModelError(f"Pose rotation is not a proper rotation (orthonormal, "
+                                 f"determinant 1): {show(rot.tolist())}")
+        else:
+            raise ModelError(f"Pose rotation must be a 3x3 matrix or a quaternion (w, x, y, "
+                             f"z), got shape {rot.shape}")
+        object.__setattr__(self, "rotation", tuple(map(tuple, rot)) if rot.ndim == 2
+                           else tuple(rot.tolist()))
+
     def matrix(self) -> tuple[np.ndarray, np.ndarray]:
         """``(R, p)``: rotation (3, 3) and translation (3,)."""
-        p = np.asarray(self.translation, dtype=float)
+        p = np.array(self.translation)
         if self.rotation is None:
-            R = np.eye(3)
-        else:
-            rot = np.asarray(self.rotation, dtype=float)
-            R = quat_to_rot(quat_normalize(rot)) if rot.shape == (4,) else rot
-        return R, p
+            return np.eye(3), p
+        rot = np.array(self.rotation)
+        return (quat_to_rot(quat_normalize(rot)) if rot.shape == (4,) else rot), p
+
+
+GEOM_SIZES = {"sphere": (1, "(radius,)"), "capsule": (2, "(radius, half-length)"),
+              "cylinder": (2, "(radius, half-length)"), "box": (3, "(3 half-extents)"),
+              "mesh": (0, "()")}
 
 
 @dataclass(frozen=True)
@@ -54,6 +83,29 @@ class Geom:
     pose: Pose = field(default_factory=Pose)
     mesh: object = None
     rgba: tuple = (0.7, 0.7, 0.7, 1.0)
+
+    def __post_init__(self):
+        if self.kind not in GEOM_SIZES:
+            raise ModelError(f"unknown geometry kind {show(self.kind)}; expected one of "
+                             f"{sorted(GEOM_SIZES)}")
+        n, meaning = GEOM_SIZES[self.kind]
+        size = real_array(f"{self.kind} geom size", self.size, ModelError).ravel()
+        if len(size) != n:
+            raise ModelError(f"a {self.kind} geom takes size = {meaning}, got {show(self.size)}")
+        if n and not np.all((size > 0) & np.isfinite(size)):
+            raise ModelError(f"a {self.kind} geom's size {meaning} must be positive and "
+                             f"finite, got {show(self.size)}")
+        object.__setattr__(self, "size", tuple(size.tolist()))
+        if self.kind == "mesh" and not (hasattr(self.mesh, "vertices")
+                                        and hasattr(self.mesh, "faces")):
+            raise ModelError(f"a mesh geom needs mesh= a trimesh.Trimesh, got "
+                             f"{show(self.mesh)}")
+        if not isinstance(self.pose, Pose):
+            raise ModelError(f"geom pose must be a vdad.Pose, got {type(self.pose).__name__}")
+        rgba = check_real("geom rgba", self.rgba, (4,), nonnegative=True, error=ModelError)
+        if np.any(rgba > 1):
+            raise ModelError(f"geom rgba must be 4 numbers in [0, 1], got {show(self.rgba)}")
+        object.__setattr__(self, "rgba", tuple(rgba.tolist()))
 
     def to_trimesh(self, sections=None):
         """This geometry as a trimesh.Trimesh in the body frame (imports trimesh).
@@ -75,10 +127,8 @@ class Geom:
         elif self.kind == "cylinder":
             mesh = trimesh.creation.cylinder(radius=self.size[0], height=2 * self.size[1],
                                              sections=sections or 32)
-        elif self.kind == "box":
-            mesh = trimesh.creation.box(extents=2 * np.asarray(self.size, dtype=float))
         else:
-            raise ModelError(f"unknown geometry kind {self.kind!r}")
+            mesh = trimesh.creation.box(extents=2 * np.asarray(self.size, dtype=float))
         R, p = self.pose.matrix()
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, p
@@ -96,6 +146,41 @@ class Body:
     com: tuple = (0.0, 0.0, 0.0)
     inertia: object = ((1.0, 0, 0), (0, 1.0, 0), (0, 0, 1.0))
     geoms: tuple = ()
+
+    def __post_init__(self):
+        name = self.name
+        if not isinstance(name, str) or not name:
+            raise ModelError(f"body name must be a non-empty string, got {show(name)}")
+        what = f"body {name!r}:"
+        mass = check_real(f"{what} mass", self.mass, positive=True, error=ModelError)
+        com = check_vector(f"{what} com", self.com, 3, error=ModelError)
+        inertia = real_array(f"{what} inertia", self.inertia, ModelError)
+        if inertia.shape == (3,):
+            inertia = np.diag(inertia)
+        if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
+            raise ModelError(f"{what} inertia must be a finite 3x3 matrix or 3 moments, got "
+                             f"{show(self.inertia)}")
+        scale = max(np.abs(inertia).max(), 1e-300)
+        if np.abs(inertia - inertia.T).max() > 1e-9 * scale:
+            raise ModelError(f"{what} inertia is not symmetric")
+        inertia = 0.5 * (inertia + inertia.T)
+        moments = np.linalg.eigvalsh(inertia)
+        if moments[0] <= 0:
+            raise ModelError(f"{what} inertia is not positive definite (principal moments "
+                             f"{moments})")
+        if moments[0] + moments[1] < moments[2] * (1 - 1e-9):
+            raise ModelError(f"{what} principal moments {moments} violate the triangle "
+                             f"inequality I1 + I2 >= I3")
+        geoms = self.geoms
+        if isinstance(geoms, Geom) or not isinstance(geoms, (tuple, list)):
+            raise ModelError(f"{what} geoms must be a tuple of vdad.Geom, got {show(geoms)}")
+        for g in geoms:
+            if not isinstance(g, Geom):
+                raise ModelError(f"{what} geoms must be vdad.Geom objects, got {show(g)}")
+        object.__setattr__(self, "mass", float(mass))
+        object.__setattr__(self, "com", tuple(com.tolist()))
+        object.__setattr__(self, "inertia", tuple(map(tuple, inertia.tolist())))
+        object.__setattr__(self, "geoms", tuple(geoms))
 
 
 @dataclass(frozen=True)
@@ -120,14 +205,77 @@ class Joint:
     stages: tuple = ()
     limits: tuple | None = None
 
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ModelError(f"joint name must be a non-empty string, got {show(self.name)}")
+        what = f"joint {self.name!r}:"
+        if not isinstance(self.child, str) or not self.child:
+            raise ModelError(f"{what} child must be a body name, got {show(self.child)}")
+        if self.parent is not None and not isinstance(self.parent, str):
+            raise ModelError(f"{what} parent must be a body name or None (the world), got "
+                             f"{show(self.parent)}")
+        kinds = sorted(J.JOINT_TYPES) + ["composite"]
+        if self.kind not in kinds:
+            raise ModelError(f"{what} unknown kind {show(self.kind)}; expected one of {kinds}")
+        axis = check_vector(f"{what} axis", self.axis, 3, error=ModelError)
+        if self.kind in ("revolute", "prismatic") and np.linalg.norm(axis) < 1e-12:
+            raise ModelError(f"{what} zero axis {tuple(axis)}")
+        if not isinstance(self.placement, Pose):
+            raise ModelError(f"{what} placement must be a vdad.Pose (e.g. Pose((0, 0, -1))), "
+                             f"got {type(self.placement).__name__}: {show(self.placement)}")
+        gains = {k: float(check_real(f"{what} {k}", getattr(self, k), nonnegative=True,
+                                     error=ModelError)) for k in ("stiffness", "damping")}
+        stages = self.stages
+        if not isinstance(stages, (tuple, list)):
+            raise ModelError(f"{what} stages must be a tuple of vdad.joints.Stage, got "
+                             f"{show(stages)}")
+        if stages and self.kind != "composite":
+            raise ModelError(f"{what} stages apply to kind='composite' only")
+        if not stages and self.kind == "composite":
+            raise ModelError(f"{what} a composite joint needs stages")
+        for r, stage in enumerate(stages):
+            if not isinstance(stage, J.Stage):
+                raise ModelError(f"{what} stage {r} must be a vdad.joints.Stage (e.g. from "
+                                 f"vdad.joints.revolute(...)), got {show(stage)}")
+        object.__setattr__(self, "axis", tuple(axis.tolist()))
+        object.__setattr__(self, "stages", tuple(stages))
+        for k, v in gains.items():
+            object.__setattr__(self, k, v)
+        object.__setattr__(self, "limits", self._checked_limits())
+
+    def _checked_limits(self):
+        """:attr:`limits` as ``(low, high)`` floats with ``low < high``, or, for a
+        composite joint, one such pair or None per stage."""
+        lim, what = self.limits, f"joint {self.name!r}: limits"
+        if lim is None:
+            return None
+        n_stages = len(self.stages) if self.kind == "composite" else 1
+        if self.kind in ("free", "fixed"):
+            raise ModelError(f"{what}: a {self.kind} joint has no limits")
+
+        def pair(x, label):
+            a = real_array(label, x, ModelError)
+            if a.shape != (2,) or not np.all(np.isfinite(a)) or not a[0] < a[1]:
+                raise ModelError(f"{label} must be (low, high) with low < high, got {show(x)}")
+            return tuple(a.tolist())
+
+        if isinstance(lim, (str, bytes)) or not hasattr(lim, "__len__"):
+            raise ModelError(f"{what} must be (low, high), got {show(lim)}")
+        if len(lim) == 2 and all(np.isscalar(x) for x in lim):
+            if n_stages != 1:
+                raise ModelError(f"{what}: a joint of {n_stages} stages takes one (low, high) "
+                                 f"or None per stage, got {show(lim)}")
+            return pair(lim, what)
+        if self.kind != "composite" or len(lim) != n_stages:
+            raise ModelError(f"{what} must be (low, high)"
+                             + (f" or one pair or None per stage ({n_stages})"
+                                if self.kind == "composite" else "") + f", got {show(lim)}")
+        return tuple(None if x is None else pair(x, f"{what}[{r}]") for r, x in enumerate(lim))
+
     def build_stages(self) -> tuple:
+        """The joint's stages (:mod:`vdad.joints`)."""
         if self.kind == "composite":
-            if not self.stages:
-                raise ModelError(f"joint {self.name!r}: a composite joint needs stages")
-            return tuple(self.stages)
-        if self.kind not in J.JOINT_TYPES:
-            raise ModelError(f"joint {self.name!r}: unknown kind {self.kind!r}; expected one of "
-                             f"{sorted(J.JOINT_TYPES) + ['composite']}")
+            return self.stages
         make = J.JOINT_TYPES[self.kind]
         if self.kind in ("revolute", "prismatic"):
             return make(axis=self.axis, stiffness=self.stiffness, damping=self.damping)
@@ -136,38 +284,23 @@ class Joint:
         return make(stiffness=self.stiffness, damping=self.damping)
 
 
+def _sequence_of(name, items, cls):
+    """``items`` as a list of ``cls`` objects, or a ModelError naming ``name``."""
+    if isinstance(items, (str, bytes, dict)) or not hasattr(items, "__iter__"):
+        raise ModelError(f"{name} must be a sequence of vdad.{cls.__name__}, got "
+                         f"{show(items)}")
+    items = list(items)
+    for k, item in enumerate(items):
+        if not isinstance(item, cls):
+            raise ModelError(f"{name}[{k}] must be a vdad.{cls.__name__}, got "
+                             f"{type(item).__name__}: {show(item)}")
+    return items
+
+
 def _readonly(a, dtype=float):
     a = np.array(a, dtype=dtype)
     a.setflags(write=False)
     return a
-
-
-def _check_body(body: Body):
-    name = body.name
-    if not isinstance(name, str) or not name:
-        raise ModelError(f"body name must be a non-empty string, got {name!r}")
-    if not np.isfinite(body.mass) or body.mass <= 0:
-        raise ModelError(f"body {name!r}: mass must be positive and finite, got {body.mass}")
-    com = np.asarray(body.com, dtype=float)
-    if com.shape != (3,) or not np.all(np.isfinite(com)):
-        raise ModelError(f"body {name!r}: com must be 3 finite numbers, got {body.com}")
-    inertia = np.asarray(body.inertia, dtype=float)
-    if inertia.shape == (3,):
-        inertia = np.diag(inertia)
-    if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
-        raise ModelError(f"body {name!r}: inertia must be a finite 3x3 matrix or 3 moments")
-    scale = max(np.abs(inertia).max(), 1e-300)
-    if np.abs(inertia - inertia.T).max() > 1e-9 * scale:
-        raise ModelError(f"body {name!r}: inertia is not symmetric")
-    inertia = 0.5 * (inertia + inertia.T)
-    moments = np.linalg.eigvalsh(inertia)
-    if moments[0] <= 0:
-        raise ModelError(f"body {name!r}: inertia is not positive definite "
-                         f"(principal moments {moments})")
-    if moments[0] + moments[1] < moments[2] * (1 - 1e-9):
-        raise ModelError(f"body {name!r}: principal moments {moments} violate the triangle "
-                         f"inequality I1 + I2 >= I3")
-    return com, inertia
 
 
 def _topological_order(parent_index: list[int | None], names: list[str]) -> list[int]:
@@ -209,12 +342,12 @@ class Model:
     """
 
     def __init__(self, bodies, joints, gravity=(0.0, 0.0, -9.81), q_spring=None, name="model"):
-        bodies, joints = list(bodies), list(joints)
+        bodies = _sequence_of("bodies", bodies, Body)
+        joints = _sequence_of("joints", joints, Joint)
         self.name = name
         if not bodies:
             raise ModelError("a model needs at least one body")
         body_names = [b.name for b in bodies]
-        checked = [_check_body(b) for b in bodies]
         seen = set()
         for nm in body_names:
             if nm in seen:
@@ -254,26 +387,14 @@ class Model:
         self.parent = _readonly([-1 if parent_index[i] is None else new_index[parent_index[i]]
                                  for i in order], int)
         self.mass = _readonly([bodies[i].mass for i in order])
-        self.com = _readonly([checked[i][0] for i in order])
-        self.inertia = _readonly([checked[i][1] for i in order])
-        self.gravity = _readonly(gravity)
-        if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
-            raise ModelError(f"gravity must be 3 finite numbers, got {gravity}")
+        self.com = _readonly([bodies[i].com for i in order])
+        self.inertia = _readonly([bodies[i].inertia for i in order])
+        self.gravity = _readonly(check_vector("gravity", gravity, 3, error=ModelError))
 
         placements, stage_rows, q_start, v_start, nqj, nvj = [], [], [], [], [], []
         nq = nv = 0
         for j, jt in enumerate(self.joints):
-            try:
-                R, p = jt.placement.matrix()
-            except (ValueError, TypeError) as exc:
-                raise ModelError(f"joint {jt.name!r}: invalid placement ({exc})") from None
-            if (R.shape != (3, 3) or p.shape != (3,) or not np.all(np.isfinite(R))
-                    or not np.all(np.isfinite(p))):
-                raise ModelError(f"joint {jt.name!r}: placement must be a finite rotation and "
-                                 f"translation")
-            if np.abs(R.T @ R - np.eye(3)).max() > 1e-9 or np.linalg.det(R) < 0:
-                raise ModelError(f"joint {jt.name!r}: placement rotation is not a proper rotation")
-            placements.append((R, p))
+            placements.append(jt.placement.matrix())
             q_start.append(nq)
             v_start.append(nv)
             stages = [J.check_stage(s, jt.name) for s in jt.build_stages()]
@@ -316,12 +437,8 @@ class Model:
             elif self.stage_kind[s] in (J.HINGE, J.SLIDE):
                 q0[self.stage_q[s]] = self.stage_ref[s]
         self.q_neutral = _readonly(q0)
-        if q_spring is None:
-            q_spring = q0
-        q_spring = np.asarray(q_spring, dtype=float)
-        if q_spring.shape != (nq,) or not np.all(np.isfinite(q_spring)):
-            raise ModelError(f"q_spring must be {nq} finite numbers")
-        self.q_spring = _readonly(q_spring)
+        self.q_spring = _readonly(q0 if q_spring is None else
+                                  check_configuration(self, "q_spring", q_spring, ModelError))
         self.children = tuple(tuple(np.flatnonzero(self.parent == i)) for i in range(self.nb))
         self.depth = _readonly(self._depths(), int)
         self.dof_joint = _readonly(np.repeat(np.arange(self.nb), nvj), int)
@@ -357,3 +474,20 @@ def check_model(model):
     if not isinstance(model, Model):
         raise InputError(f"model must be a vdad.Model, got {type(model).__name__}")
     return model
+
+
+def check_configuration(model, name, q, error=InputError):
+    """``q`` as a finite configuration vector (nq,) of ``model`` whose quaternions
+    (ball stages) can be normalised, or an error naming ``name`` and the joint."""
+    q = check_vector(name, q, model.nq, error=error)
+    balls = model.stage_q[model.stage_kind == J.BALL]              # first entry of each
+    if len(balls):
+        norms = np.linalg.norm(q[balls[:, None] + np.arange(4)], axis=1)
+        zero = np.flatnonzero(~(norms > 1e-150))
+        if len(zero):
+            i = balls[zero[0]]
+            joint = model.joint_names[model.stage_joint[model.stage_q == i][0]]
+            raise error(f"{name}[{i}:{i + 4}], the quaternion of joint {joint!r}, is zero "
+                        f"({show(q[i:i + 4].tolist())}); a rotation needs a nonzero "
+                        f"quaternion (w, x, y, z), e.g. (1, 0, 0, 0)")
+    return q

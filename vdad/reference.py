@@ -12,13 +12,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dynamics import check_vector, check_wrenches, passive_forces
+from .checks import check_vector, check_wrenches
+from .dynamics import passive_forces
 from .kinematics import joint_kinematics, plan, velocity_product
+from .model import check_configuration, check_model
 from .spatial import crf, crm, inertia_at_origin, pose_to_motion_transform
 
 
 def _setup(model, q, qd, f_ext):
-    q = check_vector("q", q, model.nq)
+    check_model(model)
+    q = check_configuration(model, "q", q)
     qd = check_vector("qd", qd, model.nv)
     f_ext = check_wrenches(model, f_ext)
     R_rel, p_rel, S, _, _ = joint_kinematics(plan(model), q)
@@ -78,7 +81,6 @@ def rnea(model, q, qd, qdd, f_ext=None):
 
 def crba(model, q):
     """Joint-space mass matrix ``M`` (nv, nv) (RBDA Table 6.2)."""
-    q = check_vector("q", q, model.nq)
     _, _, Xup, I, Sj, dofs, _, _, _ = _setup(model, q, np.zeros(model.nv), None)
     Ic = I.copy()
     for i in range(model.nb - 1, -1, -1):

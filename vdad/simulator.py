@@ -12,15 +12,20 @@ first joint at fault.
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 
 from . import dca
-from .adaptive import rotational_dofs
-from .baselines import DistanceLOD, Sleeping, root_last_tree
-from .dynamics import check_vector, default_tree, forward_dynamics
+from .adaptive import AdaptiveDynamics, rotational_dofs
+from .assembly import check_tree
+from .baselines import DistanceLOD, Sleeping, articulated_bodies, root_last_tree
+from .checks import check_callable, check_count, check_real, check_vector, check_wrenches
+from .dynamics import default_tree, forward_dynamics_unchecked
 from .errors import InputError, SimulationError
 from .integrators import get_integrator, normalize_configuration
 from .kinematics import world_poses
+from .model import check_configuration, check_model
 
 METHODS = ("dca", "adaptive", "view-bvh", "view-oq", "lod-distance", "sleeping")
 METHOD_OPTIONS = {"view-bvh": ("volume", "estimate", "resolution"),
@@ -28,6 +33,110 @@ METHOD_OPTIONS = {"view-bvh": ("volume", "estimate", "resolution"),
                   "lod-distance": ("distance",),
                   "sleeping": ("sleep_speed", "sleep_time")}
 BASELINES = ("lod-distance", "sleeping")
+_ADAPTIVE = inspect.signature(AdaptiveDynamics).parameters
+# AdaptiveDynamics' own options (its keyword arguments), given to Simulator as keywords
+ADAPTIVE_OPTIONS = tuple(k for k in _ADAPTIVE if k not in ("model", "dt", "tree"))
+ADAPTIVE_DEFAULTS = {k: _ADAPTIVE[k].default for k in ADAPTIVE_OPTIONS}    # None: not set
+EXCLUSIVE = ("threshold", "budget")                 # give one; a default only if neither
+# the options each method takes: none for the DCA; a coverage estimator of one's own
+# only with "adaptive" (the others bring theirs); baselines run at threshold 0
+OPTIONS = {m: () if m == "dca" else tuple(
+    k for k in ADAPTIVE_OPTIONS if (m == "adaptive" or k != "coverage")
+    and (m not in BASELINES or k not in EXCLUSIVE)) + METHOD_OPTIONS.get(m, ()) for m in METHODS}
+LOD_PIXELS = 4.0                 # generic lod-distance: rigid once a body spans 4 pixels
+
+
+def lod_distance(model, q, camera, pixels=LOD_PIXELS):
+    """``docs/scenes.md``, method defaults: the generic ``distance`` of
+    ``"lod-distance"``, the distance (m) at which the largest articulated body of
+    ``model`` (in configuration ``q``) spans ``pixels`` pixels on ``camera`` (its
+    position at t = 0): the diameter of the sphere around its bodies' bounding
+    spheres times the camera's focal length in pixels, over ``pixels``. Nearer,
+    every articulated body covers more than ``pixels`` pixels and stays articulated."""
+    from .bounding import body_volumes, place
+    from .camera import camera_at, check_path
+
+    focal = camera_at(check_path(camera), 0.0).focal
+    R, p = world_poses(model, q)
+    v = place(body_volumes(model, "sphere"), R, p)
+    r = np.maximum(v.r, 0.0)                            # bodies without geometry: points
+    roots = articulated_bodies(model)
+    size = 0.0
+    for root in np.unique(roots):
+        mine = roots == root
+        centre = v.c[mine].mean(axis=0)
+        size = max(size, 2 * float(np.max(np.linalg.norm(v.c[mine] - centre, axis=1)
+                                          + r[mine])))
+    return float(max(size, 1e-9) * focal / pixels)
+
+
+# Generic defaults of each method's options, used when the caller gives neither
+# threshold= nor budget= (or no distance=, ...); a callable is evaluated as
+# f(model, q0, camera). A Scene's own, calibrated ones (Scene.defaults) come first.
+DEFAULTS = {"adaptive": {"threshold": 1e-6},
+            "view-bvh": {"threshold": 1e-6, "volume": "sphere", "estimate": "min"},
+            "view-oq": {"threshold": 1e-6, "counting": "queries"},
+            "lod-distance": {"distance": lod_distance},
+            "sleeping": {"sleep_speed": 0.05, "sleep_time": 0.5}}
+
+
+def with_defaults(options, defaults):
+    """``docs/scenes.md``, method defaults: ``options`` (a dict; None values count
+    as not given) completed by ``defaults``: each default the caller did not give,
+    but neither threshold nor budget when the caller gave either of them."""
+    given = {k: v for k, v in options.items() if v is not None}
+    skip = set(given) | (set(EXCLUSIVE) if set(EXCLUSIVE) & set(given) else set())
+    return {**{k: v for k, v in defaults.items() if k not in skip}, **given}
+
+
+def _alternatives(items, word="or"):
+    """``"a, b or c"`` (``word`` "or" or "and")."""
+    items = list(items)
+    return ", ".join(items[:-1]) + f" {word} " + items[-1] if len(items) > 1 else "".join(items)
+
+
+def _keywords(names, word="or"):
+    """``"a=, b= or c="``: option names as the keyword arguments they are."""
+    return _alternatives([f"{k}=" for k in names], word)
+
+
+def method_options(model, method, q0, camera, options):
+    """``docs/scenes.md``, method defaults: the options ``method`` runs with, as
+    :attr:`Simulator.options` shows them: ``options`` (None values count as not
+    given) completed by :data:`DEFAULTS` (a callable default evaluated as
+    ``f(model, q0, camera)``) and AdaptiveDynamics' own defaults; a baseline's
+    threshold is 0. An unknown option, or one that ``method`` does not take, is an
+    :class:`InputError` naming the methods that take it."""
+    unknown = sorted(set(options) - set().union(*OPTIONS.values()))
+    if unknown:
+        raise InputError(f"unknown option {_keywords(unknown)}; method={method!r} takes "
+                         + (_keywords(OPTIONS[method], "and") or "no options"))
+    given = {k: v for k, v in options.items() if v is not None}
+    wrong = sorted(set(given) - set(OPTIONS[method]))
+    if wrong:
+        raise InputError("; ".join(
+            f"{k}= applies to " + _alternatives([f"method={m!r}" for m in METHODS
+                                                 if k in OPTIONS[m]])
+            + f", not to method={method!r}"
+            + (" (a baseline runs at threshold 0)"
+               if k in EXCLUSIVE and method in BASELINES else "")
+            for k in wrong))
+    if (method.startswith("view") or method == "lod-distance") and camera is None:
+        raise InputError(f"method={method!r} needs a camera (vdad.camera.Camera or a "
+                         f"callable t -> Camera)")
+    used = with_defaults(given, DEFAULTS.get(method, {}))
+    for k, v in used.items():
+        if callable(v) and k not in given:        # derived from the model and camera
+            q = model.q_neutral if q0 is None else check_configuration(model, "q0", q0)
+            used[k] = v(model, q, camera)
+    if method != "dca":                           # AdaptiveDynamics' own defaults
+        used = {**{k: ADAPTIVE_DEFAULTS[k] for k in OPTIONS[method]
+                   if ADAPTIVE_DEFAULTS.get(k) is not None
+                   and (method != "adaptive" or k != "coverage_every")}, **used}
+    if method in BASELINES:
+        used["threshold"] = 0.0
+    return {k: used[k] for k in (*EXCLUSIVE, *METHOD_OPTIONS.get(method, ()),
+                                 *ADAPTIVE_OPTIONS) if k in used}
 
 
 class Simulator:
@@ -35,9 +144,9 @@ class Simulator:
 
     method: ``"dca"`` (exact forward dynamics by the DCA), ``"adaptive"``
     (:class:`~vdad.adaptive.AdaptiveDynamics`, with ``threshold=`` or
-    ``budget=`` and its other options as keyword arguments), or the
-    view-dependent methods of Kim 2008 §5, adaptive dynamics whose metrics are
-    weighted by each node's screen coverage ``N_M`` under ``camera`` (a
+    ``budget=`` and its other options, :data:`ADAPTIVE_OPTIONS`, as keyword
+    arguments), or the view-dependent methods of Kim 2008 §5, adaptive dynamics
+    whose metrics are weighted by each node's screen coverage ``N_M`` under ``camera`` (a
     :class:`~vdad.camera.Camera` or a path ``t -> Camera``): ``"view-bvh"``
     from bounding volumes (options ``volume`` = ``"sphere"``, ``"obb"`` or
     ``"aabb"``, ``estimate`` = ``"min"``, ``"node"`` or ``"bodies"``;
@@ -51,6 +160,15 @@ class Simulator:
     ``"lod-distance"`` makes whole articulated bodies rigid beyond ``distance``
     (m) from the camera, ``"sleeping"`` locks those that have moved slower
     than ``sleep_speed`` for ``sleep_time`` seconds.
+    Every method runs without options (``docs/scenes.md``, method defaults):
+    what is not given (None counts as not given) comes from :data:`DEFAULTS`
+    (``threshold`` 1e-6 for ``"adaptive"``, ``"view-bvh"`` and ``"view-oq"``
+    unless ``budget`` is given; for ``"lod-distance"`` the :func:`lod_distance`
+    at which the model's largest articulated body spans :data:`LOD_PIXELS`
+    pixels) and from AdaptiveDynamics' own defaults; a :class:`~vdad.scenes.Scene`
+    gives its calibrated ones first. ``options`` holds the values used (empty
+    for ``"dca"``). An option that no method takes, or one that this method does
+    not take, is an :class:`InputError` that lists what it takes.
     integrator: ``"semi-implicit"`` (symplectic Euler) or ``"rk4"``.
     tree: assembly tree (default: balanced).
 
@@ -63,39 +181,23 @@ class Simulator:
                  camera=None, environment=None, **adaptive_options):
         if method not in METHODS:
             raise InputError(f"unknown method {method!r}; choose one of {METHODS}")
-        if adaptive_options and method == "dca":
-            raise InputError(f"options {sorted(adaptive_options)} need method='adaptive'")
-        view = {k: adaptive_options.pop(k) for k in set().union(*METHOD_OPTIONS.values())
+        self.model = check_model(model)
+        self.options = method_options(model, method, q0, camera, adaptive_options)
+        adaptive_options = dict(self.options)
+        view = {k: adaptive_options.pop(k) for k in METHOD_OPTIONS.get(method, ())
                 if k in adaptive_options}
-        wrong = sorted(set(view) - set(METHOD_OPTIONS.get(method, ())))
-        if wrong:
-            raise InputError(f"options {wrong} do not apply to method {method!r}")
-        if method in BASELINES:
-            given = sorted({"threshold", "budget"} & set(adaptive_options))
-            if given:
-                raise InputError(f"method {method!r} runs with threshold 0; {given} do not "
-                                 f"apply")
-            if method == "lod-distance" and view.get("distance") is None:
-                raise InputError("method 'lod-distance' needs distance= (m)")
-            adaptive_options["threshold"] = 0.0
-        if (method.startswith("view") or method == "lod-distance") and camera is None:
-            raise InputError(f"method {method!r} needs a camera (vdad.camera.Camera or a "
-                             f"callable t -> Camera)")
-        if not np.isfinite(dt) or dt <= 0:
-            raise InputError(f"dt must be a positive finite number, got {dt}")
-        self.model = model
         self.method = method
-        self.dt = float(dt)
+        self.dt = float(check_real("dt", dt, positive=True))
         self.integrator_name = integrator
         self._integrate = get_integrator(integrator)
         if tree is None:
             tree = root_last_tree(model) if method in BASELINES else default_tree(model)
-        self.tree = tree
+        self.tree = check_tree(model, tree)
         self.data = dca.make_data(self.tree)
-        self.controller = controller
-        self.external = external
+        self.controller = check_callable("controller", controller, "(t, q, qd) -> tau (nv,)")
+        self.external = check_callable("external", external, "(t, q, qd) -> f_ext (nb, 6)")
         q0 = model.q_neutral if q0 is None else q0
-        self.q = normalize_configuration(model, check_vector("q0", q0, model.nq))
+        self.q = normalize_configuration(model, check_configuration(model, "q0", q0))
         self.qd = np.zeros(model.nv) if qd0 is None else check_vector("qd0", qd0, model.nv).copy()
         self.t = 0.0
         self.step_count = 0
@@ -135,13 +237,15 @@ class Simulator:
         """``qdd`` at ``(t, q, qd)`` with the simulator's forces."""
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
             self._blow_up(q, qd)
-        tau = None if self.controller is None else self.controller(t, q, qd)
-        f_ext = None if self.external is None else self.external(t, q, qd)
-        return forward_dynamics(self.model, q, qd, tau, f_ext, tree=self.tree, data=self.data)
+        tau = None if self.controller is None else check_vector(
+            "controller(t, q, qd)", self.controller(t, q, qd), self.model.nv)
+        f_ext = None if self.external is None else check_wrenches(
+            self.model, self.external(t, q, qd), "external(t, q, qd)")
+        return forward_dynamics_unchecked(self.model, q, qd, tau, f_ext, self.tree, self.data)
 
     def step(self, n=1):
-        """Advance ``n`` steps; returns ``self``."""
-        for _ in range(int(n)):
+        """Advance ``n`` steps (a whole number >= 0); returns ``self``."""
+        for _ in range(check_count("n", n, minimum=0)):
             try:
                 if self.adaptive is None:
                     q, qd = self._integrate(self.model, self.accelerations, self.t, self.q,
@@ -151,9 +255,8 @@ class Simulator:
                     self.history.append(self.adaptive.step(self.t, q, qd, self._integrate,
                                                            self.controller, self.external))
             except InputError as exc:
-                raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): a "
-                                      f"callable (forces, camera or coverage) returned bad "
-                                      f"values: {exc}") from exc
+                raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): "
+                                      f"{exc}") from exc
             if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
                 self._blow_up(q, qd)
             fast = np.flatnonzero(self._rotational & (np.abs(qd) * self.dt > np.pi))

@@ -46,6 +46,10 @@ class _Coverage:
 
     def __init__(self, tree, camera, resolution=None):
         self.tree, self.model = tree, tree.model
+        if not any(body.geoms for body in self.model.bodies):
+            raise InputError(f"view-dependent coverage needs geometry, but no body of model "
+                             f"{self.model.name!r} has any (Body(..., geoms=(Geom(...),))): "
+                             f"every joint would be frozen; use method='adaptive' instead")
         self.path = check_path(camera)
         self.resolution = check_resolution(resolution)
 

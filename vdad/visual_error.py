@@ -27,11 +27,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera, camera_at, check_path, check_resolution
-from .dynamics import check_count, check_real, check_vector
+from .checks import check_count, check_finite, check_real
 from .environment import check_environment
 from .errors import InputError, SimulationError
 from .kinematics import world_poses
-from .model import check_model
+from .model import check_configuration, check_model
 from .simulator import Simulator
 from .spatial import mv
 
@@ -71,8 +71,8 @@ class Trajectory:
     ms_per_step: float = float("nan")
 
     def __post_init__(self):
-        t = check_real("t", self.t)
-        q = check_real("q", self.q)
+        t = check_finite("t", self.t)
+        q = check_finite("q", self.q)
         if t.ndim != 1 or q.ndim != 2 or len(q) != len(t):
             raise InputError(f"a trajectory needs t (F,) and q (F, nq), got t {t.shape} and "
                              f"q {q.shape}")
@@ -131,7 +131,7 @@ def poses(model, q):
     """Kim 2008 §3.1: where the bodies are drawn in configuration ``q`` (nq,):
     world rotations ``R`` (nb, 3, 3) and positions ``p`` (nb, 3) of every body."""
     check_model(model)
-    return world_poses(model, check_vector("q", q, model.nq))
+    return world_poses(model, check_configuration(model, "q", q))
 
 
 def surface_points(model, per_body=64, sections=8):
@@ -166,7 +166,7 @@ def surface_points(model, per_body=64, sections=8):
 
 
 def _world_points(name, X):
-    X = check_real(name, X)
+    X = check_finite(name, X)
     if X.ndim != 2 or X.shape[1] != 3:
         raise InputError(f"{name} must have shape (P, 3), got {X.shape}")
     return X
@@ -245,8 +245,8 @@ class VisualError:
         (nq,): ``mean_px``, ``max_px`` (floats) and ``differing_pixels`` (int, None
         without pixels)."""
         t = float(check_real("t", t))
-        q_ref = check_vector("q_ref", q_ref, self.model.nq)
-        q = check_vector("q", q, self.model.nq)
+        q_ref = check_configuration(self.model, "q_ref", q_ref)
+        q = check_configuration(self.model, "q", q)
         camera = self._camera(t)
         (R_ref, p_ref), (R, p) = world_poses(self.model, q_ref), world_poses(self.model, q)
         b, x = self.body, self.local

@@ -30,7 +30,7 @@ import warnings
 
 import numpy as np
 
-from ..dynamics import check_vector
+from ..checks import check_vector, reject_unknown, show
 from ..errors import InputError, ModelError, UnsupportedFeatureError
 from ..joints import BALL, HINGE, TRANSLATION, Stage
 from ..model import Body, Geom, Joint, Model, Pose
@@ -223,6 +223,10 @@ def from_mujoco(m, *, strict=True) -> Model:
     """
     import mujoco
 
+    if not isinstance(m, mujoco.MjModel):
+        raise InputError(f"from_mujoco takes a compiled mujoco.MjModel, got "
+                         f"{type(m).__name__}: {show(m)}; for an MJCF file use "
+                         f"vdad.load_mjcf(path)")
     obj = mujoco.mjtObj
     _check_model_features(m, strict)
     flags = int(m.opt.disableflags)
@@ -274,10 +278,14 @@ def from_mujoco(m, *, strict=True) -> Model:
                  name=model_name or "mujoco")
 
 
-def load_mjcf(path, **kw) -> Model:
-    """:func:`from_mujoco` of the MJCF file ``path`` (keyword arguments passed on)."""
+def load_mjcf(path, strict=True, **unknown) -> Model:
+    """:func:`from_mujoco` of the MJCF file ``path`` (``strict`` as there)."""
     import mujoco
 
+    reject_unknown("load_mjcf", unknown, ("path", "strict"))
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"load_mjcf takes the path of an MJCF file, got "
+                         f"{type(path).__name__}: {show(path)}")
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError(f"MJCF file not found: {path!r}")
@@ -285,7 +293,7 @@ def load_mjcf(path, **kw) -> Model:
         m = mujoco.MjModel.from_xml_path(path)
     except ValueError as exc:
         raise InputError(f"cannot load MJCF file {path!r}: {exc}") from None
-    return from_mujoco(m, **kw)
+    return from_mujoco(m, strict=strict)
 
 
 # --- export ----------------------------------------------------------------------------

@@ -28,7 +28,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..dynamics import check_vector, check_wrenches, passive_forces
+from ..checks import check_vector, check_wrenches
+from ..dynamics import passive_forces
 from ..errors import UnsupportedFeatureError
 from ..joints import BALL, HINGE, SLIDE, TRANSLATION
 from ..spatial import quat_to_rot

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..model import Body, Geom, Pose
-from ..simulator import Simulator
+from ..simulator import METHODS, Simulator, with_defaults
 
 
 def rod(name, mass, a, b, radius, rgba=(0.7, 0.7, 0.7, 1.0)) -> Body:
@@ -47,6 +47,10 @@ class Scene:
     and environment: static occluders (:class:`~vdad.environment.Environment`),
     both for the view-dependent methods and for pictures.
     params: the parameters the scene was built with.
+    defaults: the scene's own method options, {method: {option: value}},
+    calibrated on the scene at its default parameters (``docs/scenes.md``: a
+    threshold whose measured error is small, a distance from its camera);
+    :meth:`simulator` uses them for what the caller does not give.
     """
 
     name: str
@@ -61,11 +65,25 @@ class Scene:
     environment: object = None
     forces: object = None
     params: dict = field(default_factory=dict)
+    defaults: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        wrong = sorted(set(self.defaults) - set(METHODS))
+        if wrong:
+            raise InputError(f"scene {self.name!r}: defaults for unknown methods {wrong}; "
+                             f"methods are {METHODS}")
 
     def simulator(self, **options) -> Simulator:
-        """A :class:`~vdad.Simulator` started at this scene's initial state."""
-        options.setdefault("dt", self.dt)
-        options.setdefault("camera", self.camera)
-        options.setdefault("environment", self.environment)
-        return Simulator(self.model, self.q0, self.qd0, controller=self.controller,
-                         external=self.external, **options)
+        """``docs/scenes.md``, method defaults: a :class:`~vdad.Simulator` started at
+        this scene's initial state, with its forces, time step, camera and
+        environment unless ``options`` say otherwise (``q0=``, ``controller=``,
+        ...). The method's options that the caller does not give (neither
+        ``threshold`` nor ``budget``, no ``distance``, ...) come from
+        :attr:`defaults` (by :func:`~vdad.simulator.with_defaults`), then from the
+        Simulator's generic :data:`~vdad.simulator.DEFAULTS`; ``sim.options`` shows
+        those used."""
+        options = {**options, **with_defaults(
+            options, self.defaults.get(options.get("method", "dca"), {}))}
+        for name in ("q0", "qd0", "dt", "controller", "external", "camera", "environment"):
+            options.setdefault(name, getattr(self, name))
+        return Simulator(self.model, **options)

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..camera import Camera, Dolly
-from ..dynamics import check_count, check_real
+from ..checks import check_count, check_real
 from ..environment import floor
 from ..errors import InputError
 from ..forces import BodyStates, FloorContact, Forces, JointLimits, joint_inertia
@@ -113,6 +113,10 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
     within cones). The camera looks at the character from ``camera_distance`` m
     in front and to the side, and moves away at ``camera_speed`` m/s (a
     :class:`~vdad.camera.Dolly`).
+    Method defaults (``Scene.defaults``, calibrated at these parameters,
+    ``docs/scenes.md``): thresholds 1e-5 (adaptive), 3e-3 (view-bvh) and 3e-5
+    (view-oq); lod-distance rigid beyond twice ``camera_distance`` (6 m: after
+    about 1 s of the dolly); sleeping generic.
     """
     for name, v in (("dt", dt), ("camera_distance", camera_distance),
                     ("floor_frequency", floor_frequency)):
@@ -158,4 +162,7 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
                  params=dict(dt=dt, scale=scale, lean=lean, drop=drop, push=push, seed=seed,
                              joint_damping=joint_damping, floor_frequency=floor_frequency,
                              friction=friction, camera_distance=camera_distance,
-                             camera_speed=camera_speed, resolution=tuple(resolution)))
+                             camera_speed=camera_speed, resolution=tuple(resolution)),
+                 defaults={"adaptive": {"threshold": 1e-5}, "view-bvh": {"threshold": 3e-3},
+                           "view-oq": {"threshold": 3e-5},
+                           "lod-distance": {"distance": 2.0 * camera_distance}})

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera
-from ..dynamics import check_count, check_real
+from ..checks import check_count, check_real
 from ..environment import wall
 from ..errors import InputError
 from ..forces import BodyStates, Drag, Forces, RandomTorques, Springs
@@ -153,7 +153,9 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
     ``camera_distance`` m in front.
     ``PUPPET_PHASES`` names the default path's time windows (legs in the open,
     behind the wall, below the view). ``seed`` only names the run: the scene is
-    deterministic.
+    deterministic. Method defaults (``Scene.defaults``, calibrated at these
+    parameters, ``docs/scenes.md``): thresholds 1e-4 (adaptive), 0.1 (view-bvh)
+    and 1e-3 (view-oq); lod-distance and sleeping keep the generic ones.
     """
     for name, v in (("dt", dt), ("string_stiffness", string_stiffness),
                     ("camera_distance", camera_distance)):
@@ -191,7 +193,9 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
                  params=dict(dt=dt, string_stiffness=string_stiffness,
                              string_damping=string_damping, drag=drag,
                              camera_distance=camera_distance, resolution=tuple(resolution),
-                             seed=seed))
+                             seed=seed),
+                 defaults={"adaptive": {"threshold": 1e-4}, "view-bvh": {"threshold": 0.1},
+                           "view-oq": {"threshold": 1e-3}})
 
 
 # --- the hanging dogs --------------------------------------------------------------
@@ -215,6 +219,9 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
     The camera stands ``camera_distance`` m in front of the first row, a little
     above, and looks into the grid: near dogs hide far ones, the outer columns
     are cut by the viewport and the back rows are far away.
+    Method defaults (``Scene.defaults``, calibrated on the 100 dogs,
+    ``docs/scenes.md``): threshold 0.01 for adaptive, view-bvh and view-oq;
+    lod-distance rigid beyond twice ``camera_distance`` (6 m); sleeping generic.
     """
     n, columns = check_count("n_dogs", n_dogs), check_count("columns", columns)
     sx, sy = check_real("spacing", spacing, (2,), positive=True)
@@ -267,4 +274,7 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
                              spring_stiffness=spring_stiffness, spring_damping=spring_damping,
                              torque=torque, torque_rate=torque_rate,
                              torque_duration=torque_duration, seed=seed,
-                             camera_distance=camera_distance, resolution=tuple(resolution)))
+                             camera_distance=camera_distance, resolution=tuple(resolution)),
+                 defaults={"adaptive": {"threshold": 1e-2}, "view-bvh": {"threshold": 1e-2},
+                           "view-oq": {"threshold": 1e-2},
+                           "lod-distance": {"distance": 2.0 * camera_distance}})

@@ -5,11 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import Camera
-from ..dynamics import check_count, check_real
+from ..checks import check_count, check_real
 from ..errors import InputError
 from ..model import Joint, Model, Pose
 from ..spatial import quat_exp
 from .base import Scene, rod
+
+# Method defaults calibrated at pendulum()'s defaults (docs/scenes.md, method
+# defaults); lod-distance and sleeping keep the generic ones (vdad.simulator.DEFAULTS)
+DEFAULTS = {"adaptive": {"threshold": 1e-5}, "view-bvh": {"threshold": 1e-4},
+            "view-oq": {"threshold": 3e-5}}
 
 
 def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0,
@@ -28,10 +33,17 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
     The camera looks at the chain's middle along +y (square to the swing plane)
     from ``camera_distance`` (default: the whole chain in view, 1.1 chain
     lengths), at ``resolution`` pixels with a 60 degree vertical field of view.
+    Method defaults (:data:`DEFAULTS`, ``docs/scenes.md``): calibrated on the
+    20 links at 320 x 240; longer chains seen at more pixels need smaller
+    thresholds.
     """
     n = check_count("n_bodies", n_bodies)
     for name, value in (("link_length", link_length), ("link_mass", link_mass), ("dt", dt)):
         check_real(name, value, positive=True)
+    angle, gravity = float(check_real("angle", angle)), float(check_real("gravity", gravity))
+    damping = float(check_real("damping", damping, nonnegative=True))
+    if radius is not None:
+        check_real("radius", radius, positive=True)
     if axes not in ("y", "alternate"):
         raise InputError(f"axes must be 'y' or 'alternate', got {axes!r}")
     if joint not in ("revolute", "spherical"):
@@ -66,4 +78,6 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
                  f"{angle} rad", model, q0, np.zeros(model.nv), dt, camera=camera,
                  params=dict(n_bodies=n, link_length=L, link_mass=m, radius=r, angle=angle,
                              axes=axes, joint=joint, damping=damping, gravity=gravity,
-                             camera_distance=D, resolution=tuple(resolution)))
+                             camera_distance=D, resolution=tuple(resolution)),
+                 defaults={m: dict(o) for m, o in DEFAULTS.items()})
+
