@@ -52,6 +52,8 @@ def random_tree(seed, n=12, kinds=JOINT_KINDS, roots=1, springs=True, composite=
                                      stages=stages))
             continue
         axis = tuple(rng.normal(size=3))
+        if kind == "fixed":                     # no dofs, so no springs (the draws stay)
+            stiffness = damping = 0.0
         joints.append(vdad.Joint(f"j{i}", parent, name, kind, axis=axis, placement=placement,
                                  stiffness=stiffness, damping=damping))
     q_model = vdad.Model(bodies, joints, gravity=gravity)

@@ -433,6 +433,24 @@ def test_adaptive_options_are_checked():
         scene.simulator(method="adaptive", threshold=1e-3, coverage_every=0)
     with pytest.raises(InputError, match="coverage must be a callable"):
         scene.simulator(method="adaptive", threshold=1e-3, coverage=np.ones(9))
+    with pytest.raises(InputError, match="coverage_every applies to a coverage estimate"):
+        scene.simulator(method="adaptive", coverage_every=2)
+    for bad in ("no", np.array([True, False]), 1):
+        with pytest.raises(InputError, match="lookahead must be True or False"):
+            scene.simulator(method="adaptive", lookahead=bad)
+    for weights, match in (("abc", "weights must be a real number"),
+                           ({"joint0": "x"}, r"weights\['joint0'\] must be a real number"),
+                           (True, "weights must be a real number.*boolean")):
+        with pytest.raises(InputError, match=match):
+            scene.simulator(method="adaptive", weights=weights)
+    with pytest.raises(InputError, match="velocity_weights must be a real number"):
+        scene.simulator(method="adaptive", velocity_weights="x")
+    for counts, match in ((np.full(9, -1.0), "negative pixel counts"),
+                          ("x", r"coverage\(t, q, adaptive\) must be a real number")):
+        sim = scene.simulator(method="adaptive", threshold=1e-3,
+                              coverage=lambda t, q, ad, counts=counts: counts)
+        with pytest.raises(vdad.SimulationError, match=match):
+            sim.step()
     with pytest.raises(InputError, match="dwell must be"):
         scene.simulator(method="adaptive", threshold=1e-3, dwell=True)
     with pytest.raises(InputError, match=r"weights\['joint1'\] must be a positive scalar or 1"):

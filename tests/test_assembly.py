@@ -48,3 +48,34 @@ def test_invalid_orders():
         AssemblyTree(model, ["j0", "j1", "j2", "j9"])
     with pytest.raises(vdad.InputError, match="out of range"):
         AssemblyTree(model, [0, 1, 2, 7])
+
+
+@pytest.mark.parametrize("order, match", [
+    ([0, 1, 2.5], "joint index must be an integer >= 0, got 2.5"),
+    ([True, False, 2], "joint index must be an integer >= 0, got True"),
+    ([0, 1, None], "joint index must be an integer >= 0, got None"),
+    ([0, 1, np.nan], "joint index must be an integer >= 0"),
+    ([0, 1, 3], r"joint index 3 out of range 0..2"),
+    (None, "an assembly order is a sequence of joint names or indices, got None"),
+    (5, "an assembly order is a sequence"),
+    ("joint0", "an assembly order is a sequence"),
+    (["joint0", "joint1", "joint9"], "no joint called 'joint9'"),
+    ([0, 1, 1], "every joint exactly once"),
+])
+def test_bad_assembly_orders(order, match):
+    with pytest.raises((vdad.InputError, vdad.ModelError), match=match):
+        AssemblyTree(pendulum(3).model, order)
+
+
+@pytest.mark.parametrize("build", [lambda m: AssemblyTree(m, [0]), AssemblyTree.balanced,
+                                   AssemblyTree.sequential])
+def test_trees_need_models(build):
+    with pytest.raises(vdad.InputError, match="model must be a vdad.Model, got str"):
+        build("model")
+
+
+def test_a_tree_of_other_joint_dofs_is_refused_by_name():
+    tree = AssemblyTree.balanced(pendulum(3, joint="spherical").model)
+    with pytest.raises(vdad.InputError, match="whose joint 'joint0' has 3 dofs where joint "
+                                              "'joint0' of model 'pendulum3' has 1"):
+        vdad.forward_dynamics(pendulum(3).model, np.zeros(3), np.zeros(3), tree=tree)

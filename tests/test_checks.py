@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import vdad
+from vdad import quantities, reference
 from vdad.checks import check_count, check_real, check_vector, real_array, reject_unknown
 from vdad.errors import InputError, ModelError
 from vdad.scenes import pendulum
@@ -21,7 +22,8 @@ def test_real_numbers_are_accepted(value):
     ("1.0", "a string"), (b"1", "a string"), (None, "None"), (True, "a boolean"),
     (np.bool_(False), "a boolean"), (1 + 2j, "a complex number"), ([1, 2j], "a complex number"),
     ([[1, 2], [3]], "a ragged sequence"), ([1, None], "a list"), ({"a": 1}, "a dict"),
-    (["1", "2"], "a string"), (object(), "a object"),
+    (["1", "2"], "a string"), (object(), "a object"), ((True, 0, 0), "a sequence with booleans"),
+    ([[1, 0], [0, np.True_]], "a sequence with booleans"),
 ])
 def test_other_values_are_refused_by_name(value, what):
     with pytest.raises(InputError, match=f"^x must be a real number \\(or numbers\\), got {what}"):
@@ -65,3 +67,31 @@ def test_forward_dynamics_names_the_argument(kwargs, match):
     args.update(kwargs)
     with pytest.raises(InputError, match=match):
         vdad.forward_dynamics(model, **args)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda m: vdad.passive_forces(m, np.zeros(2), np.zeros(3)), r"q must have shape \(3,\)"),
+    (lambda m: vdad.passive_forces(m, "q", "qd"), "q must be a real number"),
+    (lambda m: vdad.passive_forces("m", np.zeros(3), np.zeros(3)), "model must be a vdad.Model"),
+    (lambda m: vdad.passive_forces(m, np.zeros(3), [np.nan, 0, 0]), "qd has non-finite"),
+    (lambda m: reference.crba("m", [0.0]), "model must be a vdad.Model"),
+    (lambda m: reference.aba(m, np.full(3, 0.3), np.full(3, 1e200)),
+     r"overflowed .*\|qd\| up to 1e\+200"),
+    (lambda m: quantities.kinetic_energy(m, np.zeros(4), np.zeros(3)), r"q must have shape"),
+    (lambda m: quantities.kinetic_energy(m, [np.nan, 0, 0], np.zeros(3)), "q has non-finite"),
+    (lambda m: quantities.spatial_momentum(m, np.zeros(3), None), "qd must be a real number"),
+    (lambda m: quantities.potential_energy(m, "abc"), "q must be a real number"),
+    (lambda m: quantities.total_energy("m", [0, 0, 0], [0, 0, 0]), "model must be a vdad.Model"),
+])
+def test_public_functions_check_their_arguments(call, match):
+    model = pendulum(3, axes="alternate").model
+    with np.errstate(all="ignore"), pytest.raises(InputError, match=match):
+        call(model)
+
+
+def test_lists_are_states_too():
+    model = pendulum(3).model
+    e = quantities.total_energy(model, [0.1, 0, 0], [1, 0, 0])
+    assert e == pytest.approx(quantities.total_energy(model, np.array([0.1, 0, 0]),
+                                                      np.array([1.0, 0, 0])), rel=1e-15)
+    np.testing.assert_array_equal(vdad.passive_forces(model, [0, 0, 0], [1, 2, 3]), np.zeros(3))

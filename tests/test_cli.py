@@ -44,10 +44,37 @@ def test_bad_arguments(argv, message, capsys):
     assert message in capsys.readouterr().err
 
 
-def test_unwritable_json_is_a_clear_error(tmp_path, capsys):
+@pytest.mark.parametrize("where", ["missing/x.json", "", "."])
+def test_unwritable_json_is_a_clear_error_before_the_run(where, tmp_path, capsys,
+                                                         monkeypatch):
+    monkeypatch.chdir(tmp_path)
     assert main(["run", "pendulum", "--bodies", "2", "--steps", "2", "--no-progress",
-                 "--json", str(tmp_path / "missing" / "x.json")]) == 2
-    assert "vdad: error:" in capsys.readouterr().err
+                 "--json", where]) == 2
+    out = capsys.readouterr()
+    assert f"vdad: error: --json {where!r}: give a file name in an existing folder" in out.err
+    assert "ms per step" not in out.out                      # nothing was simulated
+
+
+@pytest.mark.parametrize("out, message", [
+    ("x.jpg", "the suffix must be one of .png, .gif, .mp4"),
+    ("missing/x.png", "folder 'missing' does not exist"),
+])
+def test_bad_render_output_is_an_error_before_the_run(out, message, tmp_path, capsys,
+                                                      monkeypatch):
+    import vdad.cli
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(vdad.cli, "make_scene", lambda *a, **k: pytest.fail("simulated"))
+    assert main(["render", "pendulum", "--out", out, "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_reproduce_checks_the_scheduler_before_writing(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    assert main(["reproduce", "--quick", "--out", str(tmp_path / "res"), "--scheduler", " ",
+                 "--no-progress"]) == 2
+    assert "scheduler must be a Dask scheduler address" in capsys.readouterr().err
+    assert not (tmp_path / "res").exists()
 
 
 def test_console_entry_point():
@@ -92,6 +119,8 @@ def test_run_budget_keeps_the_budget(tmp_path):
     (["run", "pendulum", "--method", "view-bvh", "--counting", "merged"],
      "--counting applies to --method view-oq, not to --method view-bvh"),
     (["run", "pendulum", "--sleep-time", "2"], "--sleep-time applies to --method sleeping"),
+    (["run", "pendulum", "--method", "adaptive", "--coverage-every", "2"],
+     "--coverage-every applies to a coverage estimate"),
 ])
 def test_adaptive_option_errors(argv, message, capsys):
     """Errors speak in the CLI's options, not in Python keywords."""

@@ -213,7 +213,7 @@ def test_bodies_without_triangles_and_shared_geoms():
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(method="atomic"), "method must be one of"),
+    (dict(method="atomic"), r"counting method \(counting= of view-oq\) must be one of"),
     (dict(width=0), "width must be a positive whole number"),
     (dict(height=-240), "height must be a positive whole number"),
     (dict(width=320.5), "width must be a positive whole number"),

@@ -744,3 +744,144 @@ def test_bad_inputs_name_the_argument():
         FloorContact(model, frequency=0.0)
     with pytest.raises(InputError, match="height must be finite"):
         FloorContact(model, height=np.inf)
+
+
+# --- the campaign's bad inputs: vdad errors naming the culprit ------------------------
+
+SPRING = dict(points=[[0, 0, -0.1]], anchors=[[0, 0, 0.5]], stiffness=10.0)
+
+
+@pytest.mark.parametrize("bodies, message", [
+    ([True], "bodies: True is neither a body name nor a body index"),
+    ([np.bool_(False)], "bodies: (np.)?False_? is neither a body name nor a body index"),
+    ([1.5], "bodies: 1.5 is neither a body name nor a body index"),
+    ([-1], "bodies: -1 is neither a body name nor a body index of 'pendulum3' \\(0..2\\)"),
+    ([None], "bodies: None is neither"),
+    (None, "bodies must be a body name or index or a list of them, got NoneType"),
+    ({0}, "bodies must be a body name or index or a list of them, got set"),
+    ([], "bodies is empty: give at least one body of 'pendulum3'"),
+])
+def test_bodies_must_be_names_or_whole_indices_in_range(bodies, message):
+    model = pendulum(3).model
+    with pytest.raises(InputError, match=message):
+        Springs(model, bodies, **SPRING)
+
+
+def test_bodies_accept_names_whole_numbers_and_arrays():
+    model = pendulum(3).model
+    for bodies in ("link2", 2, np.int64(2), 2.0, [2], np.array([2]), ["link2"]):
+        assert Springs(model, bodies, **SPRING).bodies.tolist() == [2]
+    assert Drag(model, 1.0, bodies=range(3)).bodies.tolist() == [0, 1, 2]
+    assert BodyStates(model, ["link1", 0]).rows.tolist() == [1, 0]
+
+
+@pytest.mark.parametrize("build", [
+    lambda m: BodyStates(m, [0]),
+    lambda m: Springs(m, [0], **SPRING),
+    lambda m: RandomTorques(m, [0], 1.0),
+    lambda m: Drag(m, 1.0),
+    lambda m: FloorContact(m),
+    lambda m: JointLimits(m, {"joint0": (0, 1)}),
+    lambda m: Forces(m, []),
+    lambda m: contact_points(m),
+    lambda m: joint_inertia(m, 0),
+])
+@pytest.mark.parametrize("model", ["m", None, 3])
+def test_constructors_check_the_model(build, model):
+    with pytest.raises(InputError, match="model must be a vdad.Model, got "
+                       + type(model).__name__):
+        build(model)
+
+
+def test_random_torque_rate_is_bounded():
+    from vdad.forces import MAX_PULSE_RATE
+
+    model = pendulum(3).model
+    with pytest.raises(InputError, match=r"rate = 1e\+30 pulses per second on each of 1 body "
+                       r"is too high: rate \* len\(bodies\) must be at most 1e\+06"):
+        RandomTorques(model, [0], 1.0, rate=1e30)
+    with pytest.raises(InputError, match="on each of 3 bodies is too high"):
+        RandomTorques(model, [0, 1, 2], 1.0, rate=MAX_PULSE_RATE / 2)
+    pulses = RandomTorques(model, [0], 1.0, rate=MAX_PULSE_RATE, duration=1e-7)
+    assert np.all(np.isfinite(pulses.torques(0.5)))
+    long = RandomTorques(model, [0], 1.0, rate=2.0, duration=1e30)   # windows from 0 only
+    assert np.all(np.isfinite(long.torques(2.5)))
+    with pytest.raises(InputError, match="rate must be finite"):
+        RandomTorques(model, [0], 1.0, rate=np.inf)
+
+
+@pytest.mark.parametrize("limits, message", [
+    ([("joint0", (0, 1))], "limits must be a dict {joint name: .*got list"),
+    (None, "limits must be a dict {joint name: .*got NoneType"),
+    ("joint0", "limits must be a dict {joint name: .*got str"),
+    ({0: (0, 1)}, "limits: keys must be joint names, got 0"),
+    ({"joint0": [[0], [1, 2]]}, "limits\\['joint0'\\] must be a real number .*ragged"),
+    ({"joint0": "ab"}, "limits\\['joint0'\\] must be a real number .*a string"),
+    ({"joint0": (True, 1)}, "limits\\['joint0'\\] must be a real number"),
+])
+def test_joint_limits_need_a_dict_of_joint_names(limits, message):
+    with pytest.raises(InputError, match=message):
+        JointLimits(pendulum(3).model, limits)
+
+
+class Pusher:
+    """A force element from outside the module: a constant push on one body."""
+
+    def __init__(self, bodies):
+        self.bodies = bodies
+
+    def wrenches(self, t, states):
+        return np.tile([0.0, 0.0, 0.0, 1.0, 0.0, 0.0], (len(self.bodies), 1))
+
+
+def test_forces_need_a_list_of_force_elements():
+    model = pendulum(3).model
+    drag = Drag(model, 1.0)
+    for elements, what in ((drag, "Drag"), (None, "NoneType"), ("drag", "str"),
+                           (iter([drag]), "list_iterator")):
+        with pytest.raises(InputError, match="elements must be a list or tuple of force "
+                           f"elements, got {what}"):
+            Forces(model, elements)
+    for bad, what in ((5, "int: 5"), (None, "NoneType"), ("drag", "str"), (Drag, "type"),
+                      (np.zeros(3), "ndarray")):
+        with pytest.raises(InputError, match=r"elements\[1\] is not a force element \(an object "
+                           f"with wrenches.*got {what}"):
+            Forces(model, [drag, bad])
+    with pytest.raises(InputError, match=r"elements\[0\].bodies: 7 is neither a body name"):
+        Forces(model, [Pusher([7])])
+    forces = Forces(model, (drag, Pusher(np.array([2]))))         # a tuple, a foreign element
+    f = forces.external(0.0, model.q_neutral, np.zeros(model.nv))
+    assert f[2, 3] == 1.0 and np.all(f[:2] == 0.0)
+    assert Forces(model, []).external is None
+
+
+def test_contact_points_and_joint_inertia_check_their_arguments():
+    model = pendulum(3).model
+    with pytest.raises(InputError, match="bodies: 9 is neither a body name nor a body index"):
+        contact_points(model, bodies=[9])
+    with pytest.raises(InputError, match="bodies is empty"):
+        contact_points(model, bodies=[])
+    assert contact_points(model, bodies=["link1"])[0].tolist() == [1, 1, 1]
+    for j in (9, -1, True, 0.5, None, (0,)):
+        with pytest.raises(InputError, match="j: .* is neither a joint name nor a joint index "
+                           "of 'pendulum3' \\(0..2\\)"):
+            joint_inertia(model, j)
+    with pytest.raises(ModelError, match="no joint called 'knee'"):
+        joint_inertia(model, "knee")
+    assert joint_inertia(model, "joint1") == joint_inertia(model, 1) == joint_inertia(model, 1.0)
+    for kind in ("volume", None, "Mass"):
+        with pytest.raises(InputError, match="kind must be 'inertia' or 'mass', got"):
+            joint_inertia(model, 0, kind=kind)
+
+
+def test_floor_contact_with_no_bodies_says_so():
+    model = pendulum(3).model                                      # it has geometry
+    with pytest.raises(InputError, match="bodies is empty: give at least one body of "
+                       "'pendulum3'"):
+        FloorContact(model, bodies=[])
+    two = Model([Body("ball", 1.0, geoms=(Geom("sphere", (0.1,)),)), Body("ghost", 1.0)],
+                [Joint("a", None, "ball", "free"), Joint("b", None, "ghost", "free")],
+                name="half")
+    with pytest.raises(ModelError, match="model 'half' has no geometry on bodies \\['ghost'\\]"):
+        FloorContact(two, bodies=["ghost"])
+    assert FloorContact(two).bodies.tolist() == [0]

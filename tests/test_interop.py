@@ -377,3 +377,93 @@ def test_importing_vdad_loads_neither_oracle():
         assert "mujoco" not in sys.modules and "pinocchio" not in sys.modules
     """)
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def chain(kinds, name="chain"):
+    """A chain of unit bodies b0, b1, ... joined by joints of ``kinds``."""
+    rng = np.random.default_rng(len(kinds))
+    bodies = [vdad.Body(f"b{i}", 1.0, inertia=random_inertia(rng, 0.1))
+              for i in range(len(kinds))]
+    joints = [vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}", kind,
+                         placement=vdad.Pose((0.0, 0.0, -0.5)))
+              for i, kind in enumerate(kinds)]
+    return vdad.Model(bodies, joints, name=name)
+
+
+@pytest.mark.parametrize("strict", ["no", 0, None, "True"])
+def test_strict_must_be_a_bool(hip_xml, strict):
+    with pytest.raises(vdad.InputError, match="strict must be True or False, got"):
+        load_mjcf(hip_xml, strict=strict)
+    m = mujoco.MjModel.from_xml_path(str(hip_xml))
+    with pytest.raises(vdad.InputError, match="strict must be True or False, got"):
+        from_mujoco(m, strict=strict)
+    assert from_mujoco(m, strict=np.False_).nb == 5
+
+
+@pytest.mark.parametrize("export", [to_mujoco, to_mjspec, to_pinocchio])
+@pytest.mark.parametrize("model", ["x", None, 3])
+def test_exporters_take_a_vdad_model(export, model):
+    with pytest.raises(vdad.InputError, match="model must be a vdad.Model, got"):
+        export(model)
+
+
+def test_mujoco_forward_checks_its_arguments():
+    model = chain(["revolute", "spherical", "prismatic"])
+    m, d = to_mujoco(model)
+    q, qd = model.q_neutral, np.zeros(model.nv)
+    f_ext = np.zeros((model.nb, 6))
+    np.testing.assert_allclose(mujoco_forward(m, d, q, qd, f_ext=f_ext),
+                               vdad.forward_dynamics(model, q, qd), atol=1e-9)
+    with pytest.raises(vdad.InputError, match="f_ext must be a real number .*got a string"):
+        mujoco_forward(m, d, q, qd, f_ext="x")
+    with pytest.raises(vdad.InputError, match=r"f_ext must have shape \(3, 6\) .*got \(3, 5\)"):
+        mujoco_forward(m, d, q, qd, f_ext=np.zeros((3, 5)))
+    f_ext[1, 2] = np.nan
+    with pytest.raises(vdad.InputError, match="f_ext must be finite"):
+        mujoco_forward(m, d, q, qd, f_ext=f_ext)
+    with pytest.raises(vdad.InputError, match="mjmodel must be a compiled mujoco.MjModel .*str"):
+        mujoco_forward("m", "d", q, qd)
+    with pytest.raises(vdad.InputError, match="mjdata must be a mujoco.MjData .*str"):
+        mujoco_forward(m, "d", q, qd)
+    other, other_data = to_mujoco(chain(["revolute", "revolute"]))
+    with pytest.raises(vdad.InputError, match="mjdata does not belong to mjmodel"):
+        mujoco_forward(m, other_data, q, qd)
+    with pytest.raises(vdad.InputError,
+                       match=r"^m must be a compiled mujoco.MjModel \(.*\), got str"):
+        mujoco_layout("m")
+    with pytest.raises(vdad.InputError, match="q must have shape"):
+        mujoco_forward(other, other_data, q, qd)
+
+
+def test_to_pinocchio_names_the_stage_kinds():
+    J = vdad.joints
+    model = vdad.Model([vdad.Body("b0", 1.0)], [vdad.Joint(
+        "elbow", None, "b0", "composite", stages=J.revolute() + J.revolute(axis=(1, 0, 0)))])
+    with pytest.raises(vdad.UnsupportedFeatureError,
+                       match=r"joint 'elbow': stages hinge \+ hinge have no Pinocchio"):
+        to_pinocchio(model)
+
+
+def test_pinocchio_forward_checks_its_models():
+    model = chain(["revolute", "spherical", "fixed"], name="arm")
+    pm = to_pinocchio(model)
+    pd = pm.createData()
+    q, qd = model.q_neutral, np.zeros(model.nv)
+    np.testing.assert_allclose(pinocchio_forward(pm, pd, model, q, qd),
+                               vdad.forward_dynamics(model, q, qd), atol=1e-9)
+    with pytest.raises(vdad.InputError, match="pmodel must be a pinocchio.Model .*got str"):
+        pinocchio_forward("pm", "pd", model, q, qd)
+    with pytest.raises(vdad.InputError, match="pdata must be a pinocchio.Data .*got str"):
+        pinocchio_forward(pm, "pd", model, q, qd)
+    with pytest.raises(vdad.InputError, match="model must be a vdad.Model, got str"):
+        pinocchio_forward(pm, pd, "arm", q, qd)
+    for other in (chain(["free", "revolute", "revolute"]),      # more dofs
+                  chain(["revolute", "spherical"]),             # one body fewer
+                  chain(["spherical", "revolute", "fixed"])):   # same counts, other order
+        with pytest.raises(vdad.InputError, match="pmodel does not match vmodel 'chain'"):
+            pinocchio_forward(pm, pd, other, other.q_neutral, np.zeros(other.nv))
+    with pytest.raises(vdad.InputError, match=r"joint 1 \('j0'\) is a JointModelRevolute"):
+        pinocchio_forward(pm, pd, chain(["prismatic", "spherical", "fixed"]), q, qd)
+    small = to_pinocchio(chain(["revolute"]))
+    with pytest.raises(vdad.InputError, match="pdata does not belong to pmodel"):
+        pinocchio_forward(pm, small.createData(), model, q, qd)

@@ -72,6 +72,8 @@ def test_bodies_are_normalised_and_hashable():
     (dict(limits="abc"), r"joint 'jb': limits must be \(low, high\), got 'abc'"),
     (dict(limits=(0, 1, 2)), r"joint 'jb': limits must be \(low, high\)"),
     (dict(kind="free", limits=(0, 1)), "joint 'jb': limits: a free joint has no limits"),
+    (dict(kind="fixed", stiffness=5.0), "joint 'jb': a fixed joint has no dofs"),
+    (dict(kind=["revolute"]), r"joint 'jb': unknown kind \['revolute'\]"),
     (dict(kind="composite", stages=vdad.joints.revolute() + vdad.joints.revolute(),
           limits=(0, 1)), "joint 'jb': limits: a joint of 2 stages takes one"),
     (dict(kind="composite", stages=vdad.joints.revolute() + vdad.joints.revolute(),
@@ -80,6 +82,24 @@ def test_bodies_are_normalised_and_hashable():
 def test_invalid_joints_name_the_joint(kwargs, match):
     with pytest.raises(ModelError, match=match):
         Joint("jb", **{"parent": "a", "child": "b", **kwargs})
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: vdad.joints.revolute(axis=5), r"hinge stage axis must have shape \(3,\)"),
+    (lambda: vdad.joints.revolute(anchor=None), "hinge stage anchor must be a real number"),
+    (lambda: vdad.joints.prismatic(stiffness=-1), "slide stage stiffness must be >= 0"),
+    (lambda: vdad.joints.spherical(damping="x"), "ball stage damping must be a real number"),
+    (lambda: vdad.joints.Stage("wobble"), "unknown stage kind 'wobble'"),
+])
+def test_stages_check_themselves(make, match):
+    with pytest.raises(ModelError, match=match):
+        make()
+
+
+@pytest.mark.parametrize("name", [5, None, ""])
+def test_model_names_are_strings(name):
+    with pytest.raises(ModelError, match="the model's name must be a non-empty string"):
+        Model(*two_links(), name=name)
 
 
 def test_joint_limits_are_normalised():
@@ -106,6 +126,7 @@ def test_joints_that_name_unknown_bodies(joint, match):
     (dict(rotation="identity"), "Pose rotation must be a real number.*string"),
     (dict(translation=(0, 0)), r"Pose translation must have shape \(3,\)"),
     (dict(translation=(0, np.inf, 0)), "Pose translation has non-finite"),
+    (dict(translation=(True, 0, 0)), "Pose translation must be a real number.*booleans"),
 ])
 def test_invalid_poses(kwargs, match):
     with pytest.raises(ModelError, match=match):
@@ -118,6 +139,7 @@ def test_invalid_poses(kwargs, match):
     (("box", (1, 1)), {}, "a box geom takes size"),
     (("box", "abc"), {}, "box geom size must be a real number"),
     (("cone", (1,)), {}, "unknown geometry kind 'cone'"),
+    ((["sphere"], (1,)), {}, r"unknown geometry kind \['sphere'\]"),
     (("mesh",), {}, "a mesh geom needs mesh="),
     (("sphere", (1,)), dict(pose=(0, 0, 0)), "geom pose must be a vdad.Pose"),
     (("sphere", (1,)), dict(rgba=(1, 0, 0, 2)), r"geom rgba must be 4 numbers in \[0, 1\]"),

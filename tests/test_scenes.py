@@ -9,8 +9,17 @@ import pytest
 from vdad import Simulator
 from vdad.errors import InputError
 from vdad.quantities import kinetic_energy
-from vdad.scenes import SCENES, dog_puppet, falling_character, hanging_dogs, pendulum
-from vdad.scenes.dogs import LEGS, PUPPET_PHASES, StickPath
+from vdad.scenes import (
+    SCENES,
+    Scene,
+    dog_puppet,
+    falling_character,
+    hanging_dogs,
+    pendulum,
+    rod,
+    toy_dog,
+)
+from vdad.scenes.dogs import LEGS, PUPPET_PHASES, StickPath, default_stick_path
 from vdad.simulator import DEFAULTS, LOD_PIXELS, METHODS, lod_distance
 
 SMALL = {"pendulum": lambda: pendulum(n_bodies=20),
@@ -136,6 +145,158 @@ def test_scene_arguments_are_checked():
         StickPath((0.0, 0.0), ((0, 0, 1), (1, 0, 1)))
     with pytest.raises(InputError, match="drag"):
         dog_puppet(drag=-1.0)
+
+
+# --- the campaign's bad inputs: InputErrors naming the culprit --------------------------
+
+BUILD = {"pendulum": lambda **kw: pendulum(3, **kw), "dog_puppet": dog_puppet,
+         "hanging_dogs": lambda **kw: hanging_dogs(1, **kw),
+         "falling_character": falling_character}
+
+
+@pytest.mark.parametrize("resolution", [(0, 240), "320x240", (320.5, 240), (320,), None,
+                                        (320, 240, 3), (1,), 320, (320, -1)])
+@pytest.mark.parametrize("name", sorted(BUILD))
+def test_every_scene_checks_its_resolution(name, resolution):
+    assert set(BUILD) == set(SCENES)
+    with pytest.raises(InputError, match="resolution") as exc:
+        BUILD[name](resolution=resolution)
+    assert "camera width" not in str(exc.value)
+
+
+@pytest.mark.parametrize("name", sorted(BUILD))
+def test_scene_resolution_reaches_the_camera(name):
+    scene = BUILD[name](resolution=[160.0, 120])
+    camera = scene.camera(0.0) if callable(scene.camera) else scene.camera
+    assert (camera.width, camera.height) == (160, 120)
+    assert scene.params["resolution"] == (160, 120)
+
+
+@pytest.mark.parametrize("stick, message", [
+    (lambda t: "x", r"stick\(t\) must be a real number .*a string"),
+    (lambda t: np.full((6, 3), np.nan), r"stick\(t\) must be finite"),
+    (lambda t: np.zeros((5, 3)), r"stick\(t\) must give the \(6, 3\) world points .*\(5, 3\)"),
+    (lambda t: np.zeros(18), r"stick\(t\) must give the \(6, 3\)"),
+    (lambda: np.zeros((6, 3)), r"stick\(t\) failed at t = 0: TypeError"),
+    (lambda t: [[0, 0]] * 5 + [[0, 0, 0]], r"stick\(t\) must be a real number .*ragged"),
+    ("stick", "stick must be a callable"),
+])
+def test_puppet_stick_is_checked(stick, message):
+    with pytest.raises(InputError, match=message) as exc:
+        dog_puppet(stick=stick)
+    assert "rest_length" not in str(exc.value)
+
+
+@pytest.mark.parametrize("seed", [-1, "abc", 1.5, True, None])
+def test_puppet_seed_is_checked(seed):
+    with pytest.raises(InputError, match="seed must be an integer >= 0"):
+        dog_puppet(seed=seed)
+
+
+@pytest.mark.parametrize("args, message", [
+    (dict(times="ab", positions=((0, 0, 1),)), "times must be a real number .*a string"),
+    (dict(times=(0.0,), positions="xyz"), "positions must be a real number .*a string"),
+    (dict(times=(0.0,), positions=((0, 0, 1),), rock="x"), "rock must be a real number"),
+    (dict(times=(0.0,), positions=((0, 0, 1),), rock=np.inf), "rock must be finite"),
+    (dict(times=(0.0,), positions=((0, 0, 1),), rock_hz=np.nan), "rock_hz must be finite"),
+    (dict(times=(0.0,), positions=((0, 0, 1),), rock_hz=-1.0), "rock_hz must be >= 0"),
+    (dict(times=(0.0,), positions=((0, 0, 1),), rock=(0.1, 0.2)),
+     "rock must be a single number"),
+    (dict(times=(), positions=()), "stick path needs times \\(k,\\) and positions"),
+])
+def test_stick_path_checks_its_parameters(args, message):
+    with pytest.raises(InputError, match=message):
+        StickPath(**args)
+
+
+def test_stick_path_stores_floats():
+    path = StickPath(np.array([0, 1]), [[0, 0, 1], [1, 0, 1]], rock=0, rock_hz=2)
+    assert path.times == (0.0, 1.0) and path.positions == ((0.0, 0.0, 1.0), (1.0, 0.0, 1.0))
+    assert path.rock == 0.0 and path.rock_hz == 2.0
+    np.testing.assert_allclose(path(0.5)[:, 0], 0.5 + np.array([0.15, -0.15, 0.09, 0.09,
+                                                                 -0.09, -0.09]))
+    assert default_stick_path() == default_stick_path()
+
+
+@pytest.mark.parametrize("value, message", [
+    (0, "torque_duration must be positive"), ("x", "torque_duration must be a real number"),
+    (np.nan, "torque_duration must be finite"), ((0.1, 0.2), "torque_duration must be a single"),
+])
+def test_hanging_dogs_name_their_own_torque_duration(value, message):
+    with pytest.raises(InputError, match=message):
+        hanging_dogs(1, torque_duration=value)
+
+
+def test_hanging_dogs_bound_the_torque_rate():
+    with pytest.raises(InputError, match=r"torque_rate \* n_dogs = 2e\+06 pulses per second is "
+                       r"too high: at most 1e\+06"):
+        hanging_dogs(2, torque_rate=1e6)
+
+
+@pytest.mark.parametrize("prefix", [None, 3, b"dog/", ["dog"]])
+def test_toy_dog_prefix_is_a_string(prefix):
+    with pytest.raises(InputError, match="prefix must be a string"):
+        toy_dog(prefix=prefix)
+
+
+def test_toy_dog_prefix_names_the_bodies():
+    bodies, joints = toy_dog("rex/")
+    assert bodies[0].name == "rex/torso" and joints[0].name == "rex/root"
+
+
+@pytest.mark.parametrize("changes, message", [
+    (dict(drop=-5), "drop must be >= 0, got -5"),
+    (dict(drop="x"), "drop must be a real number"),
+    (dict(lean=2.0), "lean must be within \\[-pi/2, pi/2\\] rad"),
+    (dict(lean=np.nan), "lean must be finite"),
+    (dict(scale=0), "scale must be positive"),
+    (dict(joint_damping=-1), "joint_damping must be >= 0"),
+    (dict(friction=-0.5), "friction must be >= 0"),
+    (dict(camera_distance=-3), "camera_distance must be positive"),
+    (dict(push=np.inf), "push must be finite"),
+    (dict(camera_speed="fast"), "camera_speed must be a real number"),
+])
+def test_falling_character_rejects_geometry_that_makes_no_sense(changes, message):
+    with pytest.raises(InputError, match=message):
+        falling_character(**changes)
+
+
+def test_falling_character_starts_above_the_floor():
+    scene = falling_character(drop=0.0)
+    contact = scene.forces.elements[0]
+    low = contact.points(scene.forces.states_of(contact, scene.q0, scene.qd0))[0][:, 2]
+    assert low.min() == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("defaults, message", [
+    ({"adaptive": 5}, "scene 'pendulum': defaults\\['adaptive'\\] must be a dict {option: value}, "
+     "got 5"),
+    ({"adaptive": None}, "defaults\\['adaptive'\\] must be a dict"),
+    ({"adaptive": {1: 2}}, "defaults\\['adaptive'\\] must be a dict {option: value}"),
+    (5, "scene 'pendulum': defaults must be a dict {method: {option: value}}, got int"),
+    ([("adaptive", {})], "defaults must be a dict"),
+    ({5: {}, "x": {}}, "defaults for unknown methods \\[5, 'x'\\]"),
+])
+def test_scene_defaults_are_method_dicts(defaults, message):
+    scene = pendulum(n_bodies=3)
+    with pytest.raises(InputError, match=message):
+        replace(scene, defaults=defaults)
+    assert isinstance(Scene(**{**scene.__dict__, "defaults": {}}), Scene)
+
+
+@pytest.mark.parametrize("args, message", [
+    (("r", "1", (0, 0, 0), (0, 0, 1), 0.1), "rod 'r': mass must be a real number .*a string"),
+    (("r", 1, (0, 0, 0), (0, 0, 1), None), "rod 'r': radius must be a real number .*None"),
+    (("r", 1, (0, 0), (0, 0, 1), 0.1), "rod 'r': a must have shape \\(3,\\), got \\(2,\\)"),
+    (("r", 1, (0, 0, 0), "abc", 0.1), "rod 'r': b must be a real number"),
+    (("r", 1, (0, 0, np.nan), (0, 0, 1), 0.1), "rod 'r': a has non-finite entries"),
+    (("r", -1, (0, 0, 0), (0, 0, 1), 0.1), "rod 'r': mass must be positive"),
+    (("r", 1, (0, 0, 0), (0, 0, 1), 0), "rod 'r': radius must be positive"),
+    (("r", 1, (0, 0, 1), (0, 0, 1), 0.1), "rod 'r': its ends a and b must differ"),
+])
+def test_rod_checks_its_arguments(args, message):
+    with pytest.raises(InputError, match=message):
+        rod(*args)
 
 
 # --- the falling character comes to rest -------------------------------------------

@@ -130,6 +130,9 @@ def test_simulator_rejects_bad_options():
     (dict(controller=3), r"controller must be a callable \(t, q, qd\) -> tau"),
     (dict(external="f"), r"external must be a callable \(t, q, qd\) -> f_ext"),
     (dict(q0=np.full(3, np.nan)), "q0 has non-finite entries"),
+    (dict(integrator={}), "unknown integrator {}"),
+    (dict(camera="cam"), "camera must be a vdad.camera.Camera or a callable"),
+    (dict(environment="floor"), "environment must be a vdad.environment.Environment"),
     (dict(qd0="abc"), "qd0 must be a real number"),
 ])
 def test_simulator_rejects_bad_input(kwargs, match):
@@ -219,3 +222,14 @@ def test_diverging_run_stops_with_the_joint():
     with pytest.raises(SimulationError, match="step 1 .*joint 'joint1' turns 4 rad in one "
                                               "step .*diverging; reduce the time step"):
         sim.step()
+
+
+@pytest.mark.parametrize("method", ["dca", "adaptive"])
+def test_body_poses_take_names_or_indices_in_range(method):
+    sim = pendulum(3).simulator(method=method)
+    R, p = sim.body_poses(["link0", 2])
+    R_all, p_all = sim.body_poses()
+    np.testing.assert_allclose(p, p_all[[0, 2]], atol=1e-12)
+    for bad in ([5], [-1], [0.5], [True], "link9"):
+        with pytest.raises(vdad.VdadError, match="link9|neither a body name nor a body index"):
+            sim.body_poses(bad)

@@ -273,3 +273,101 @@ def test_the_displacement_measure_needs_no_opengl():
             "from vdad.visual_error import VisualError; s = pendulum(n_bodies=3); "
             "q = s.model.q_neutral; VisualError(s.model, s.camera, pixels=False)(0.0, q, q)")
     assert loaded(code, ("pyrender", "OpenGL")) == "[]"
+
+
+@pytest.mark.parametrize("flag", ["no", 1, None, "False"])
+def test_flags_must_be_booleans(scene, flag):
+    with pytest.raises(InputError, match=r"pixels must be True or False, got"):
+        measure(scene.simulator(), 2, pixels=flag)
+    with pytest.raises(InputError, match=r"progress must be True or False, got"):
+        measure(scene.simulator(), 2, pixels=False, progress=flag)
+    with pytest.raises(InputError, match=r"progress must be True or False, got"):
+        record(scene.simulator(), 2, progress=flag)
+    with pytest.raises(InputError, match=r"pixels must be True or False, got"):
+        VisualError(scene.model, CAMERA, pixels=flag)
+
+
+def test_numpy_booleans_are_flags(scene):
+    assert VisualError(scene.model, CAMERA, pixels=np.False_).pixels is False
+    trace, _ = measure(scene.simulator(), 2, pixels=np.False_, progress=np.False_)
+    assert np.all(np.isnan(trace.differing_pixels))
+
+
+@pytest.mark.parametrize("ms, message", [
+    ("x", "ms_per_step must be a real number"), ([1, 2], "must be a single number"),
+    (-1.0, "must be >= 0"), (np.inf, "must be finite"), (None, "ms_per_step must be a real"),
+    (True, r"ms_per_step must be a real number \(or numbers\), got a boolean")])
+def test_trajectory_checks_ms_per_step(ms, message):
+    with pytest.raises(InputError, match=message):
+        Trajectory([0.1, 0.2], np.zeros((2, 3)), ms)
+
+
+def test_trajectory_ms_per_step_may_be_unknown():
+    assert np.isnan(Trajectory([0.1], np.zeros((1, 3))).ms_per_step)
+    assert np.isnan(Trajectory([0.1], np.zeros((1, 3)), np.nan).ms_per_step)
+    trajectory = Trajectory([0.1], np.zeros((1, 3)), np.float32(2.5))
+    assert type(trajectory.ms_per_step) is float and trajectory.ms_per_step == 2.5
+
+
+@pytest.mark.parametrize("t, culprit", [([1.0, 0.0], r"t\[1\] = 0.0 after t\[0\] = 1.0"),
+                                        ([0.1, 0.2, 0.2], r"t\[2\] = 0.2 after t\[1\] = 0.2")])
+def test_trajectory_frames_are_at_increasing_times(t, culprit):
+    with pytest.raises(InputError, match=f"t must increase from frame to frame, got {culprit}"):
+        Trajectory(t, np.zeros((len(t), 3)))
+
+
+def test_trajectory_files_that_cannot_be_read_or_written(tmp_path):
+    trajectory = Trajectory([0.1, 0.2], np.zeros((2, 3)), 1.0)
+    missing = tmp_path / "nowhere.npz"
+    with pytest.raises(InputError, match=r"cannot read a Trajectory from .*nowhere\.npz.*: "
+                                         r"No such file or directory"):
+        Trajectory.load(missing)
+    with pytest.raises(InputError, match=r"cannot read a Trajectory from .*: Is a directory"):
+        Trajectory.load(tmp_path)
+    text = tmp_path / "notes.txt"
+    text.write_text("not an archive\n")
+    with pytest.raises(InputError, match=r"notes\.txt' is not a Trajectory written by "
+                                         r"Trajectory.save: it is not an \.npz archive"):
+        Trajectory.load(text)
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(InputError, match=r"broken\.npz' .*not an \.npz archive"):
+        Trajectory.load(broken)
+    array = tmp_path / "array.npy"
+    np.save(array, np.zeros(3))
+    with pytest.raises(InputError, match=r"array\.npy' .*one array \(\.npy\)"):
+        Trajectory.load(array)
+    other = tmp_path / "other.npz"
+    np.savez(other, t=np.zeros(2))
+    with pytest.raises(InputError, match=r"other\.npz' .*lacks \['ms_per_step', 'q'\]"):
+        Trajectory.load(other)
+    backwards = tmp_path / "backwards.npz"
+    np.savez(backwards, t=np.array([0.2, 0.1]), q=np.zeros((2, 3)), ms_per_step=1.0)
+    with pytest.raises(InputError, match=r"backwards\.npz' .*: t must increase"):
+        Trajectory.load(backwards)
+    with pytest.raises(InputError, match=r"cannot write the Trajectory to .*no_dir.*x\.npz.*: "
+                                         r"No such file or directory"):
+        trajectory.save(tmp_path / "no_dir" / "x.npz")
+    for call in (trajectory.save, Trajectory.load):
+        with pytest.raises(InputError, match="path must be a file path .*got NoneType"):
+            call(None)
+
+
+def test_error_trace_checks_its_columns(tmp_path):
+    with pytest.raises(InputError, match="t must be a real number .*got a string"):
+        ErrorTrace(["a"], [0], [0], [0])
+    with pytest.raises(InputError, match="t must be finite"):
+        ErrorTrace([np.nan], [0], [0], [0])
+    for name in ("mean_px", "max_px", "differing_pixels"):
+        columns = dict(t=[0.1], mean_px=[1.0], max_px=[2.0], differing_pixels=[3])
+        columns[name] = ["x"]
+        with pytest.raises(InputError, match=f"{name} must be a real number"):
+            ErrorTrace(**columns)
+    with pytest.raises(InputError, match="arrays of one shape"):
+        ErrorTrace([0.1, 0.2], [0], [0], [0])
+    trace = ErrorTrace([0.1], [1.0], [2.0], [np.nan])
+    with pytest.raises(InputError, match=r"cannot write the error trace to .*no_dir.*x\.csv.*: "
+                                         r"No such file or directory"):
+        trace.to_csv(tmp_path / "no_dir" / "x.csv")
+    with pytest.raises(InputError, match="path must be a file path"):
+        trace.to_csv(3)

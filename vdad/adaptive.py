@@ -41,7 +41,15 @@ import numpy as np
 
 from . import joints as J
 from .assembly import GROUND, TRASH, LeafPlan, Level
-from .checks import check_callable, check_count, check_real, check_vector, check_wrenches
+from .checks import (
+    check_callable,
+    check_count,
+    check_flag,
+    check_real,
+    check_vector,
+    check_wrenches,
+    real_array,
+)
 from .dca import (
     DCAData,
     MetricData,
@@ -125,14 +133,14 @@ def resolve_weights(model, weights, name="weights"):
         for joint, value in weights.items():
             j = model.joint_index(joint)
             d = model.nv_joint[j]
-            v = np.asarray(value, float)
+            v = real_array(f"{name}[{joint!r}]", value)
             v = np.full(d, float(v)) if v.ndim == 0 else v
             if v.shape != (d,) or not np.all(np.isfinite(v)) or np.any(v <= 0):
                 raise InputError(f"{name}[{joint!r}] must be a positive scalar or {d} positive "
                                  f"numbers, got {value!r}")
             w[model.v_start[j]:model.v_start[j] + d] = v
         return w
-    w = np.asarray(weights, float)
+    w = real_array(name, weights)
     if w.ndim == 0:
         w = np.full(model.nv, float(w))
     if w.shape != (model.nv,):
@@ -204,7 +212,10 @@ class AdaptiveDynamics:
         self.threshold = None if threshold is None else float(threshold)
         self.budget = None if budget is None else int(budget)
         self.kappa, self.dwell, self.policy = float(kappa), int(dwell), policy
-        self.lookahead = bool(lookahead)
+        if coverage is None and coverage_every != 1:
+            raise InputError("coverage_every applies to a coverage estimate (the view-dependent "
+                             "methods); plain adaptive dynamics has none")
+        self.lookahead = check_flag("lookahead", lookahead)
         self.wA = resolve_weights(model, weights, "weights")
         self.wV = self.wA if velocity_weights is None else resolve_weights(
             model, velocity_weights, "velocity_weights")
@@ -409,12 +420,13 @@ class AdaptiveDynamics:
         return st
 
     def _checked_coverage(self, t, q):
-        N = np.asarray(self.coverage(t, q, self), float)
+        N = real_array("coverage(t, q, adaptive)", self.coverage(t, q, self))
         if N.shape != (self.tree.n_nodes + 1,):
             raise InputError(f"coverage must return ({self.tree.n_nodes + 1},) values per "
                              f"node, got shape {N.shape}")
-        if np.any(N < 0):
-            raise InputError("coverage returned negative pixel counts")
+        if np.any(N < 0):                        # NaN: a node inside a rigid group, unused
+            raise InputError(f"coverage returned negative pixel counts (node "
+                             f"{np.flatnonzero(N < 0)[0]})")
         return N
 
     def _accelerations(self, t, q_a, qd_a):

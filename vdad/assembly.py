@@ -27,7 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import check_count, show
 from .errors import InputError
+from .model import check_model
 
 GROUND = -1
 ZERO, TRASH = 0, 1
@@ -138,7 +140,11 @@ class AssemblyTree:
     """
 
     def __init__(self, model, order):
+        check_model(model)
         nb = model.nb
+        if isinstance(order, (str, bytes)) or not hasattr(order, "__iter__"):
+            raise InputError(f"an assembly order is a sequence of joint names or indices, got "
+                             f"{show(order)}")
         order = [self._joint_id(model, j) for j in order]
         if sorted(order) != list(range(nb)):
             missing = sorted(set(range(nb)) - set(order))
@@ -193,17 +199,17 @@ class AssemblyTree:
     def _joint_id(model, j):
         if isinstance(j, str):
             return model.joint_index(j)
-        j = int(j)
-        if not 0 <= j < model.nb:
-            raise InputError(f"joint index {j} out of range 0..{model.nb - 1}")
-        return j
+        index = check_count("an assembly order's joint index", j, minimum=0)
+        if index >= model.nb:
+            raise InputError(f"joint index {index} out of range 0..{model.nb - 1}")
+        return index
 
     # --- constructors --------------------------------------------------------------
 
     @classmethod
     def balanced(cls, model):
         """Rounds of greedy matchings, cheapest merges (fewest ports) first."""
-        nb = model.nb
+        nb = check_model(model).nb
         parent = model.parent
         uf = list(range(nb))
         nports = np.array([1 + len(model.children[i]) for i in range(nb)])
@@ -245,7 +251,7 @@ class AssemblyTree:
     @classmethod
     def sequential(cls, model):
         """Tip-to-base order (each body joined to its subtree, ABA-like): depth O(n)."""
-        return cls(model, list(range(model.nb))[::-1])
+        return cls(model, list(range(check_model(model).nb))[::-1])
 
     # --- plans ------------------------------------------------------------------------
 
@@ -368,11 +374,18 @@ def check_tree(model, tree):
     if not isinstance(tree, AssemblyTree):
         raise InputError(f"tree must be a vdad.AssemblyTree, got {type(tree).__name__}")
     other = tree.model
-    if other is not model and not (
-            other.nb == model.nb and np.array_equal(other.parent, model.parent)
-            and np.array_equal(other.nv_joint, model.nv_joint)
-            and np.array_equal(other.nq_joint, model.nq_joint)):
+    if other is model:
+        return tree
+    if other.nb != model.nb or not np.array_equal(other.parent, model.parent):
         raise InputError(f"tree was built for model {other.name!r} ({other.nb} bodies), whose "
                          f"topology differs from model {model.name!r} ({model.nb} bodies); "
                          f"build it with AssemblyTree.balanced(model)")
+    differ = np.flatnonzero((other.nv_joint != model.nv_joint)
+                            | (other.nq_joint != model.nq_joint))
+    if len(differ):
+        j = differ[0]
+        raise InputError(f"tree was built for model {other.name!r}, whose joint "
+                         f"{other.joint_names[j]!r} has {other.nv_joint[j]} dofs where joint "
+                         f"{model.joint_names[j]!r} of model {model.name!r} has "
+                         f"{model.nv_joint[j]}; build it with AssemblyTree.balanced(model)")
     return tree

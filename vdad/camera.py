@@ -21,21 +21,36 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .checks import check_count, check_real, check_vector, real_array, show
 from .errors import InputError
 
 
-def _vector(name, value):
-    v = np.asarray(value, dtype=float)
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise InputError(f"camera {name} must be 3 finite numbers, got {value!r}")
-    return v
+def _pixels(name, value):
+    """``value`` as an int number of pixels (a whole number >= 1), or an error."""
+    try:
+        return check_count(name, value)
+    except InputError:
+        raise InputError(f"{name} must be a positive whole number of pixels, got "
+                         f"{show(value)}") from None
+
+
+def _direction(v):
+    """``v`` (3,) scaled so that its largest entry is 1 in magnitude (no under- or
+    overflow, unlike dividing by its norm)."""
+    return v / np.abs(v).max()
+
+
+def _time(t):
+    """The time ``t`` of a camera path as a float, or an error naming it."""
+    return float(check_real("camera path time t", t))
 
 
 @dataclass(frozen=True)
 class Camera:
     """A perspective camera at ``position`` looking at ``target`` with ``up`` the
     world direction shown upwards; ``yfov`` (rad), ``width`` x ``height`` pixels,
-    near and far clipping planes ``znear`` < ``zfar`` (m)."""
+    near and far clipping planes ``znear`` < ``zfar`` (m). Checked on construction
+    and stored as tuples, floats and ints."""
 
     position: tuple = (3.0, 0.0, 0.0)
     target: tuple = (0.0, 0.0, 0.0)
@@ -47,26 +62,37 @@ class Camera:
     zfar: float = 100.0
 
     def __post_init__(self):
-        pos, tgt, up = (_vector(n, getattr(self, n)) for n in ("position", "target", "up"))
-        forward = tgt - pos
-        if np.linalg.norm(forward) == 0:
-            raise InputError("camera target must differ from its position")
-        if np.linalg.norm(np.cross(forward, up)) <= 1e-12 * np.linalg.norm(forward) * max(
-                np.linalg.norm(up), 1e-300):
-            raise InputError(f"camera up {tuple(up)} is parallel to the viewing direction")
-        if not (np.isfinite(self.yfov) and 0 < self.yfov < np.pi):
-            raise InputError(f"camera yfov must be in (0, pi) rad, got {self.yfov}")
-        for name in ("width", "height"):
-            value = getattr(self, name)
-            if int(value) != value or value < 1:
-                raise InputError(f"camera {name} must be a positive whole number of pixels, "
-                                 f"got {value!r}")
-        if not (np.isfinite(self.znear) and np.isfinite(self.zfar) and 0 < self.znear
-                < self.zfar):
-            raise InputError(f"camera planes need 0 < znear < zfar, got znear={self.znear}, "
-                             f"zfar={self.zfar}")
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
+        pos, tgt, up = (check_vector(f"camera {n}", getattr(self, n), 3)
+                        for n in ("position", "target", "up"))
+        with np.errstate(over="ignore", invalid="ignore"):
+            forward = tgt - pos
+        if not np.all(np.isfinite(forward)):
+            raise InputError(f"camera target {show(self.target)} is too far from its position "
+                             f"{show(self.position)} (the difference overflows)")
+        if not np.any(forward):
+            raise InputError(f"camera target must differ from its position, both are "
+                             f"{show(self.position)}")
+        if not np.any(up):
+            raise InputError("camera up must be a nonzero vector, got (0, 0, 0)")
+        f, u = _direction(forward), _direction(up)
+        with np.errstate(under="ignore"):
+            sine = np.linalg.norm(np.cross(f, u)) / (np.linalg.norm(f) * np.linalg.norm(u))
+        if sine <= 1e-12:
+            raise InputError(f"camera up {tuple(up.tolist())} is parallel to the viewing "
+                             f"direction {tuple(forward.tolist())}")
+        yfov = float(check_real("camera yfov", self.yfov))
+        if not 0 < yfov < np.pi:
+            raise InputError(f"camera yfov must be in (0, pi) rad, got {show(self.yfov)}")
+        width, height = (_pixels(f"camera {n}", getattr(self, n)) for n in ("width", "height"))
+        znear, zfar = (float(check_real(f"camera {n}", getattr(self, n)))
+                       for n in ("znear", "zfar"))
+        if not 0 < znear < zfar:
+            raise InputError(f"camera planes need 0 < znear < zfar, got znear={show(self.znear)}, "
+                             f"zfar={show(self.zfar)}")
+        for name, value in (("position", tuple(pos.tolist())), ("target", tuple(tgt.tolist())),
+                            ("up", tuple(up.tolist())), ("yfov", yfov), ("width", width),
+                            ("height", height), ("znear", znear), ("zfar", zfar)):
+            object.__setattr__(self, name, value)
 
     def __call__(self, t):
         """A camera is the constant path: the same camera at every time ``t``."""
@@ -81,9 +107,9 @@ class Camera:
         """Camera axes in world coordinates (3, 3): columns ``x`` (right), ``y``
         (up), ``z`` (backwards)."""
         pos, tgt, up = (np.asarray(v, float) for v in (self.position, self.target, self.up))
-        z = pos - tgt
+        z = _direction(pos - tgt)
         z /= np.linalg.norm(z)
-        x = np.cross(up, z)
+        x = _direction(np.cross(_direction(up), z))
         x /= np.linalg.norm(x)
         return np.stack([x, np.cross(z, x), z], axis=1)
 
@@ -123,8 +149,10 @@ class Camera:
 
     def to_camera(self, points):
         """Camera coordinates (..., 3) of world ``points`` (..., 3)."""
-        R = self.rotation
-        return (np.asarray(points, float) - np.asarray(self.position, float)) @ R
+        p = real_array("points", points)
+        if p.shape[-1:] != (3,):
+            raise InputError(f"points must have shape (..., 3) (world x, y, z), got {p.shape}")
+        return (p - np.asarray(self.position)) @ self.rotation
 
     def project(self, points):
         """Image coordinates (..., 2) in pixels and depth (...,) of world ``points``
@@ -150,11 +178,16 @@ class Dolly:
     speed: float
     start: float = 0.0
 
+    def __post_init__(self):
+        _check_camera("dolly camera", self.camera)
+        object.__setattr__(self, "speed", float(check_real("dolly speed", self.speed)))
+        object.__setattr__(self, "start", float(check_real("dolly start", self.start)))
+
     def __call__(self, t):
         c = self.camera
         pos, tgt = np.asarray(c.position, float), np.asarray(c.target, float)
         back = (pos - tgt) / np.linalg.norm(pos - tgt)
-        s = max(float(t) - self.start, 0.0) * self.speed
+        s = max(_time(t) - self.start, 0.0) * self.speed
         s = max(s, -np.linalg.norm(pos - tgt) * (1 - 1e-6))      # never pass the target
         return replace(c, position=tuple(pos + s * back))
 
@@ -169,16 +202,19 @@ class Orbit:
     period: float
 
     def __post_init__(self):
-        if not (np.isfinite(self.period) and self.period != 0):
+        _check_camera("orbit camera", self.camera)
+        period = float(check_real("orbit period", self.period))
+        if period == 0:
             raise InputError(f"orbit period must be a non-zero number of seconds, "
-                             f"got {self.period}")
+                             f"got {show(self.period)}")
+        object.__setattr__(self, "period", period)
 
     def __call__(self, t):
         c = self.camera
         axis = np.asarray(c.up, float) / np.linalg.norm(c.up)
         tgt = np.asarray(c.target, float)
         r = np.asarray(c.position, float) - tgt
-        a = 2 * np.pi * float(t) / self.period
+        a = 2 * np.pi * _time(t) / self.period
         rot = (r * np.cos(a) + np.cross(axis, r) * np.sin(a)
                + axis * (axis @ r) * (1 - np.cos(a)))
         return replace(c, position=tuple(tgt + rot))
@@ -194,19 +230,38 @@ class Keyframes:
     cameras: tuple
 
     def __post_init__(self):
-        times = np.asarray(self.times, float)
-        if len(times) != len(self.cameras) or len(times) == 0:
+        cameras = self.cameras
+        if isinstance(cameras, Camera) or not isinstance(cameras, (tuple, list)):
+            raise InputError(f"keyframe cameras must be a tuple of vdad.camera.Camera, got "
+                             f"{type(cameras).__name__}: {show(cameras)}")
+        for i, c in enumerate(cameras):
+            _check_camera(f"keyframe camera {i}", c)
+        times = real_array("keyframe times", self.times)
+        if times.ndim != 1:
+            raise InputError(f"keyframe times must be a sequence of numbers, got "
+                             f"{show(self.times)}")
+        if len(times) != len(cameras) or len(times) == 0:
             raise InputError(f"keyframes need as many times as cameras (at least one), got "
-                             f"{len(times)} times and {len(self.cameras)} cameras")
+                             f"{len(times)} times and {len(cameras)} cameras")
         if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-            raise InputError(f"keyframe times must be finite and increasing, got {self.times}")
+            raise InputError(f"keyframe times must be finite and increasing, got "
+                             f"{show(self.times)}")
+        object.__setattr__(self, "times", tuple(times.tolist()))
+        object.__setattr__(self, "cameras", tuple(cameras))
 
     def __call__(self, t):
-        times = np.asarray(self.times, float)
+        times = np.asarray(self.times)
         rows = np.array([[*c.position, *c.target, *c.up, c.yfov] for c in self.cameras])
-        v = _interpolate(float(t), times, rows)
+        v = _interpolate(_time(t), times, rows)
         return replace(self.cameras[0], position=tuple(v[:3]), target=tuple(v[3:6]),
                        up=tuple(v[6:9]), yfov=float(v[9]))
+
+
+def _check_camera(name, camera):
+    """An error naming ``name`` unless ``camera`` is a :class:`Camera`."""
+    if not isinstance(camera, Camera):
+        raise InputError(f"{name} must be a vdad.camera.Camera, got "
+                         f"{type(camera).__name__}: {show(camera)}")
 
 
 def check_path(camera):
@@ -217,18 +272,18 @@ def check_path(camera):
     return camera
 
 
-def check_resolution(resolution):
-    """``resolution`` (width, height) in pixels as two ints, or None (the camera's)."""
-    if resolution is None:
+def check_resolution(resolution, allow_none=True):
+    """``resolution`` (width, height) in pixels as two ints, or None (the camera's)
+    if ``allow_none``; else an InputError naming ``resolution``."""
+    if resolution is None and allow_none:
         return None
-    try:
-        w, h = (int(x) for x in resolution)
-    except (TypeError, ValueError):
-        raise InputError(f"resolution must be (width, height) in pixels, got "
-                         f"{resolution!r}") from None
-    if w < 1 or h < 1 or (w, h) != tuple(resolution):
-        raise InputError(f"resolution must be two positive whole numbers, got {resolution!r}")
-    return w, h
+    pair = (resolution.shape == (2,) if isinstance(resolution, np.ndarray)
+            else isinstance(resolution, (tuple, list)) and len(resolution) == 2)
+    if not pair:
+        raise InputError(f"resolution must be (width, height) in pixels, two positive whole "
+                         f"numbers, got {show(resolution)}")
+    return (_pixels("resolution width", resolution[0]),
+            _pixels("resolution height", resolution[1]))
 
 
 def camera_at(path, t) -> Camera:

@@ -35,10 +35,18 @@ def _as_real(value):
     except (TypeError, ValueError):
         return None, "a ragged sequence" if isinstance(value, (list, tuple)) else (
             f"a {type(value).__name__}")
-    if a.dtype.kind in "iuf":
+    if a.dtype.kind in "iuf" and not (isinstance(value, (list, tuple)) and _has_bool(value)):
         return a.astype(float), None
+    if a.dtype.kind in "iuf":
+        return None, "a sequence with booleans"
     return None, {"b": "a boolean", "c": "a complex number", "U": "a string",
                   "S": "a string"}.get(a.dtype.kind, f"a {type(value).__name__}")
+
+
+def _has_bool(items):
+    """Whether the (nested) list or tuple ``items`` holds a boolean."""
+    return any(isinstance(x, (bool, np.bool_))
+               or (isinstance(x, (list, tuple)) and _has_bool(x)) for x in items)
 
 
 def real_array(name, value, error=InputError):
@@ -102,6 +110,15 @@ def check_count(name, value, minimum=1, error=InputError):
     if a is None or a.ndim or not np.isfinite(a) or a != int(a) or a < minimum:
         raise error(f"{name} must be {what}, got {show(value)}")
     return int(a)
+
+
+def check_flag(name, value):
+    """``value`` as a bool if it is one (Python's or numpy's), else an InputError
+    naming ``name``: a string such as ``'no'`` is not taken for True."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputError(f"{name} must be True or False, got {type(value).__name__}: "
+                         f"{show(value)}")
+    return bool(value)
 
 
 def check_callable(name, f, signature):

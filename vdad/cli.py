@@ -314,9 +314,21 @@ def describe_options(method, options):
                      for k, v in shown)
 
 
+def _check_json(path):
+    """An InputError, before a run, if the ``--json`` file cannot be written."""
+    from pathlib import Path
+
+    if path is None:
+        return
+    target = Path(path)
+    if not path or target.is_dir() or not target.parent.is_dir():
+        raise InputError(f"--json {path!r}: give a file name in an existing folder")
+
+
 def run_scene(args):
     from tqdm import tqdm
 
+    _check_json(args.json)
     scene = make_scene(args)
     sim = make_simulator(scene, args)
     chunk = max(1, args.steps // 100)
@@ -366,8 +378,9 @@ def adaptive_summary(history):
 
 
 def render_scene(args):
-    from .render.pictures import SceneRenderer, motion_strip, record, write
+    from .render.pictures import SceneRenderer, check_output, motion_strip, record, write
 
+    check_output(args.out)
     distances = args.distances or [None]
     runs = []
     for d in distances:

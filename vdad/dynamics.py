@@ -16,7 +16,7 @@ from . import joints as J
 from .assembly import AssemblyTree, check_tree
 from .checks import check_vector, check_wrenches
 from .errors import InputError
-from .kinematics import as_joint_set, kinematics
+from .kinematics import JointSet, as_joint_set, kinematics, plan
 from .model import check_configuration, check_model
 from .spatial import quat_log, quat_mul
 
@@ -44,6 +44,10 @@ def spring_displacements(space, q):
 def passive_forces(space, q, qd):
     """Joint spring and damper forces (nv,): ``-K d - D qd`` per stage, with the
     displacements ``d`` of :func:`spring_displacements` (``space`` as there)."""
+    if not isinstance(space, JointSet):
+        check_model(space)
+        q = check_configuration(space, "q", q)
+        qd = check_vector("qd", qd, space.nv)
     js = as_joint_set(space)
     tau = -js.damping * qd
     for k, dofs, d in spring_displacements(js, q):
@@ -73,15 +77,21 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     f_ext = check_wrenches(model, f_ext)
     tree = default_tree(model) if tree is None else check_tree(model, tree)
     data = dca.make_data(tree) if data is None else dca.check_data(tree, data)
-    qdd = forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data)
-    if not np.all(np.isfinite(qdd)):
-        bad = model.dof_joint[np.flatnonzero(~np.isfinite(qdd))[0]]
-        sizes = ", ".join(f"|{k}| up to {np.abs(v).max():.3g}" for k, v in
-                          (("qd", qd), ("tau", tau), ("f_ext", f_ext)) if v is not None)
-        raise InputError(f"forward dynamics overflowed double precision (non-finite "
-                         f"acceleration at joint {model.joint_names[bad]!r}); the inputs are "
-                         f"too large: {sizes}")
-    return qdd
+    return check_overflow(model, forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data),
+                          qd=qd, tau=tau, f_ext=f_ext)
+
+
+def check_overflow(model, qdd, **inputs):
+    """``qdd`` if it is finite; else the InputError of accelerations that came out
+    non-finite from finite ``inputs`` (name: array or None): they overflowed double
+    precision. Names the first joint at fault and the size of the inputs."""
+    if np.all(np.isfinite(qdd)):
+        return qdd
+    bad = model.dof_joint[np.flatnonzero(~np.isfinite(qdd))[0]]
+    sizes = ", ".join(f"|{k}| up to {np.abs(v).max():.3g}" for k, v in inputs.items()
+                      if v is not None)
+    raise InputError(f"forward dynamics overflowed double precision (non-finite acceleration "
+                     f"at joint {model.joint_names[bad]!r}); the inputs are too large: {sizes}")
 
 
 def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
@@ -89,7 +99,7 @@ def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
     finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``tree`` of
     ``model`` and its ``data``): what a simulator calls every step."""
     kin = kinematics(model, q, qd)
-    tau_total = passive_forces(model, q, qd)
+    tau_total = passive_forces(plan(model), q, qd)
     if tau is not None:
         tau_total += tau
     dca.dca_pass(model, tree, kin, dca.body_wrenches(model, kin, f_ext),

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import check_real, check_vector, show
 from .errors import InputError
 from .model import Geom, Pose
 
@@ -25,15 +26,26 @@ class Environment:
     geoms: tuple = ()
 
     def __post_init__(self):
-        geoms = tuple(self.geoms)
+        geoms = self.geoms
+        if isinstance(geoms, Geom) or not isinstance(geoms, (tuple, list)):
+            raise InputError(f"environment geoms must be a tuple of vdad.Geom, got "
+                             f"{type(geoms).__name__}: {show(geoms)}")
         for i, g in enumerate(geoms):
             if not isinstance(g, Geom):
                 raise InputError(f"environment geom {i} must be a vdad.Geom, got "
-                                 f"{type(g).__name__}")
-        object.__setattr__(self, "geoms", geoms)
+                                 f"{type(g).__name__}: {show(g)}")
+        object.__setattr__(self, "geoms", tuple(geoms))
 
     def __add__(self, other):
-        return Environment(self.geoms + Environment(other.geoms).geoms)
+        """The geoms of both environments (``other`` must be an Environment)."""
+        if not isinstance(other, Environment):
+            raise InputError(f"only a vdad.environment.Environment can be added to an "
+                             f"Environment, got {type(other).__name__}: {show(other)}")
+        return Environment(self.geoms + other.geoms)
+
+    def __radd__(self, other):
+        raise InputError(f"only a vdad.environment.Environment can be added to an "
+                         f"Environment, got {type(other).__name__}: {show(other)}")
 
     def to_trimesh(self):
         """All geoms as one trimesh.Trimesh in world coordinates (None if empty)."""
@@ -56,17 +68,19 @@ def check_environment(environment) -> Environment:
 def box(center, half_extents, rotation=None, rgba=(0.6, 0.6, 0.65, 1.0)) -> Environment:
     """A box with ``half_extents`` (3,) centred at ``center`` (3,), rotated by
     ``rotation`` (3x3 matrix or quaternion w, x, y, z)."""
-    h = np.asarray(half_extents, float)
-    if h.shape != (3,) or not np.all(np.isfinite(h)) or np.any(h <= 0):
-        raise InputError(f"box half_extents must be 3 positive numbers, got {half_extents!r}")
-    c = np.asarray(center, float)
-    if c.shape != (3,) or not np.all(np.isfinite(c)):
-        raise InputError(f"box center must be 3 finite numbers, got {center!r}")
+    c = check_vector("box center", center, 3)
+    h = check_vector("box half_extents", half_extents, 3)
+    if np.any(h <= 0):
+        raise InputError(f"box half_extents must be 3 positive numbers, got {show(half_extents)}")
     return Environment((Geom("box", tuple(h), Pose(tuple(c), rotation), rgba=rgba),))
 
 
 def floor(height=0.0, size=20.0, thickness=0.05, rgba=(0.5, 0.5, 0.5, 1.0)) -> Environment:
-    """A square floor slab of side ``size`` whose top face is at ``z = height``."""
+    """A square floor slab of side ``size`` whose top face is at ``z = height``
+    (``thickness`` is its half-thickness, the box's half-extent along z)."""
+    height = float(check_real("floor height", height))
+    size = float(check_real("floor size", size, positive=True))
+    thickness = float(check_real("floor thickness", thickness, positive=True))
     return box((0.0, 0.0, height - thickness), (size / 2, size / 2, thickness), rgba=rgba)
 
 
@@ -74,12 +88,21 @@ def wall(start, end, height=2.0, thickness=0.05, base=0.0,
          rgba=(0.65, 0.6, 0.55, 1.0)) -> Environment:
     """A vertical wall from ``start`` to ``end`` ((x, y) points on the floor),
     ``height`` m tall from ``z = base``."""
-    a, b = np.asarray(start, float), np.asarray(end, float)
-    if a.shape != (2,) or b.shape != (2,) or np.allclose(a, b):
-        raise InputError(f"a wall needs two distinct (x, y) points, got {start!r}, {end!r}")
-    d = b - a
+    a, b = check_vector("wall start", start, 2), check_vector("wall end", end, 2)
+    height = float(check_real("wall height", height, positive=True))
+    thickness = float(check_real("wall thickness", thickness, positive=True))
+    base = float(check_real("wall base", base))
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        d = b - a
+        length = float(np.linalg.norm(d))
+    if length == 0:
+        raise InputError(f"a wall needs two distinct (x, y) points (a wall of zero length), "
+                         f"got start={show(start)}, end={show(end)}")
+    if not np.isfinite(length):
+        raise InputError(f"wall start {show(start)} and end {show(end)} are too far apart "
+                         f"(the length overflows)")
     angle = np.arctan2(d[1], d[0])
     quat = (np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2))
     mid = (a + b) / 2
-    return box((mid[0], mid[1], base + height / 2),
-               (np.linalg.norm(d) / 2, thickness / 2, height / 2), quat, rgba)
+    return box((mid[0], mid[1], base + height / 2), (length / 2, thickness / 2, height / 2),
+               quat, rgba)

@@ -19,24 +19,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .checks import check_real
+from .checks import check_real, real_array, show
 from .errors import InputError, ModelError
 from .kinematics import body_poses, body_velocities, joint_kinematics, joint_set
+from .model import body_indices, check_model, whole_index
 from .spatial import cross3, mv, quat_log
 
-
-def _bodies(model, bodies, name="bodies"):
-    """Body indices (k,) from names or indices, checked."""
-    out = []
-    for b in np.atleast_1d(np.asarray(bodies, dtype=object)):
-        if isinstance(b, str):
-            out.append(model.body_index(b))
-        elif isinstance(b, (int, np.integer)) and 0 <= b < model.nb:
-            out.append(int(b))
-        else:
-            raise InputError(f"{name}: {b!r} is neither a body name nor a body index of "
-                             f"{model.name!r} (0..{model.nb - 1})")
-    return np.array(out, int)
+#: The most pulses per second that a :class:`RandomTorques` draws over all its
+#: bodies (``rate * len(bodies)``): each 1 s window's pulses are drawn at once.
+MAX_PULSE_RATE = 1e6
 
 
 class BodyStates:
@@ -48,7 +39,7 @@ class BodyStates:
     world axes."""
 
     def __init__(self, model, bodies):
-        bodies = np.asarray(bodies, int)
+        bodies = body_indices(check_model(model), bodies)
         keep = np.zeros(model.nb, bool)
         b = np.unique(bodies)
         while len(b):
@@ -93,8 +84,8 @@ class Springs:
 
     def __init__(self, model, bodies, points, anchors, stiffness, damping=0.0,
                  rest_length=0.0, string=False):
-        self.model = model
-        self.bodies = _bodies(model, bodies)
+        self.model = check_model(model)
+        self.bodies = body_indices(model, bodies)
         k = len(self.bodies)
         self.points = check_real("points", points, (k, 3))
         self.moving = callable(anchors)
@@ -155,10 +146,16 @@ class RandomTorques:
     needs_states = False          # torques do not depend on the bodies' states
 
     def __init__(self, model, bodies, magnitude, rate=1.0, duration=0.1, seed=0):
-        self.model = model
-        self.bodies = _bodies(model, bodies)
+        self.model = check_model(model)
+        self.bodies = body_indices(model, bodies)
         self.magnitude = float(check_real("magnitude", magnitude, nonnegative=True))
         self.rate = float(check_real("rate", rate, nonnegative=True))
+        if self.rate * len(self.bodies) > MAX_PULSE_RATE:
+            k = len(self.bodies)
+            raise InputError(f"rate = {self.rate:g} pulses per second on each of {k} "
+                             f"bod{'y' if k == 1 else 'ies'} is too high: rate * len(bodies) "
+                             f"must be at most {MAX_PULSE_RATE:g} (the pulses of each 1 s "
+                             f"window are drawn at once)")
         self.duration = float(check_real("duration", duration, positive=True))
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise InputError(f"seed must be an integer >= 0, got {seed!r}")
@@ -183,7 +180,7 @@ class RandomTorques:
     def torques(self, t):
         """Torques (k, 3) on ``self.bodies`` at time ``t``."""
         out = np.zeros((len(self.bodies), 3))
-        for w in range(int(np.floor(t - self.duration)), int(np.floor(t)) + 1):
+        for w in range(max(int(np.floor(t - self.duration)), 0), int(np.floor(t)) + 1):
             rows, start, tau = self.pulses(w)
             on = (start <= t) & (t < start + self.duration)
             np.add.at(out, rows[on], tau[on])
@@ -200,9 +197,9 @@ class Drag:
     ``exp(-rate t)``. Stable while ``rate dt < 1``."""
 
     def __init__(self, model, rate, bodies=None):
-        self.model = model
+        self.model = check_model(model)
         self.rate = float(check_real("rate", rate, nonnegative=True))
-        self.bodies = np.arange(model.nb) if bodies is None else _bodies(model, bodies)
+        self.bodies = np.arange(model.nb) if bodies is None else body_indices(model, bodies)
 
     def wrenches(self, t, states):
         R, p, w, v = states
@@ -219,8 +216,10 @@ def contact_points(model, bodies=None):
     ``(body (m,), centre (m, 3) in the body frame, radius (m,))``. A sphere is
     itself; a capsule or cylinder gives its two end centres and its middle with
     its radius (a cylinder's rims are rounded); a box its 8 corners and a mesh
-    the vertices of its convex hull (radius 0)."""
-    bodies = range(model.nb) if bodies is None else bodies
+    the vertices of its convex hull (radius 0). ``bodies``: names or indices
+    (default all)."""
+    check_model(model)
+    bodies = range(model.nb) if bodies is None else body_indices(model, bodies)
     rows = []
     for b in bodies:
         for g in model.bodies[b].geoms:
@@ -237,7 +236,10 @@ def contact_points(model, bodies=None):
             for x in local:
                 rows.append((b, p + R @ x, r))
     if not rows:
-        raise ModelError(f"model {model.name!r} has no geometry to take contact points from")
+        which = "" if len(bodies) == model.nb else (
+            f" on bodies {show([model.body_names[b] for b in bodies])}")
+        raise ModelError(f"model {model.name!r} has no geometry{which} to take contact points "
+                         f"from")
     b, c, r = zip(*rows, strict=True)
     return np.array(b, int), np.array(c), np.array(r, float)
 
@@ -261,12 +263,12 @@ class FloorContact:
 
     def __init__(self, model, height=0.0, frequency=150.0, damping_ratio=0.7, friction=0.8,
                  bodies=None):
-        self.model = model
+        self.model = check_model(model)
         self.height = float(check_real("height", height))
         self.frequency = float(check_real("frequency", frequency, positive=True))
         self.damping_ratio = float(check_real("damping_ratio", damping_ratio, nonnegative=True))
         self.friction = float(check_real("friction", friction, nonnegative=True))
-        chosen = None if bodies is None else _bodies(model, bodies)
+        chosen = None if bodies is None else body_indices(model, bodies)
         body, self.centres, self.radii = contact_points(model, chosen)
         self.bodies, self.point_body = np.unique(body, return_inverse=True)
         n = np.bincount(self.point_body)
@@ -305,11 +307,22 @@ class FloorContact:
 
 
 def joint_inertia(model, j, kind="inertia"):
-    """The lighter side of joint ``j``: the smaller of its child's and its parent
-    body's largest moment of inertia about the joint (``kind="mass"``: the
-    smaller mass). A spring or damper on the joint accelerates both sides, so
-    its stable stiffness and damping at a time step scale with this value
-    (``docs/forces.md``)."""
+    """The lighter side of joint ``j`` (a joint name or index): the smaller of its
+    child's and its parent body's largest moment of inertia about the joint
+    (``kind="mass"``: the smaller mass). A spring or damper on the joint
+    accelerates both sides, so its stable stiffness and damping at a time step
+    scale with this value (``docs/forces.md``)."""
+    check_model(model)
+    if isinstance(j, str):
+        j = model.joint_index(j)
+    elif (i := whole_index(model, j)) is None:
+        raise InputError(f"j: {j!r} is neither a joint name nor a joint index of "
+                         f"{model.name!r} (0..{model.nb - 1})")
+    else:
+        j = i
+    if kind not in ("inertia", "mass"):
+        raise InputError(f"kind must be 'inertia' or 'mass', got {show(kind)}")
+
     def about(b, point):
         d = model.com[b] - point
         return np.max(np.linalg.eigvalsh(model.inertia[b]
@@ -338,28 +351,33 @@ class JointLimits:
     """
 
     def __init__(self, model, limits, frequency=60.0, damping_ratio=1.0):
-        self.model = model
+        self.model = check_model(model)
+        if not isinstance(limits, dict):
+            raise InputError(f"limits must be a dict {{joint name: (low, high) or cone angle}}, "
+                             f"got {type(limits).__name__}: {show(limits)}")
         frequency = float(check_real("frequency", frequency, positive=True))
         zeta = float(check_real("damping_ratio", damping_ratio, nonnegative=True))
         hinge, ball = [], []
         for name, limit in limits.items():
+            if not isinstance(name, str):
+                raise InputError(f"limits: keys must be joint names, got {show(name)}")
             j = model.joint_index(name)
             stages = model.joints[j].build_stages()
             kinds = [s.kind for s in stages]
             I_joint = joint_inertia(model, j)
             if kinds in (["hinge"], ["slide"]):
-                if np.shape(limit) != (2,):
+                if real_array(f"limits[{name!r}]", limit).shape != (2,):
                     raise InputError(f"limits[{name!r}]: a one-dof joint takes (low, high), "
-                                     f"got {limit!r}")
+                                     f"got {show(limit)}")
                 low, high = check_real(f"limits[{name!r}]", limit, (2,))
                 if low > high:
                     raise InputError(f"joint {name!r}: limit low {low} > high {high}")
                 inertia = joint_inertia(model, j, "mass") if kinds == ["slide"] else I_joint
                 hinge.append((model.v_start[j], low, high, inertia))
             elif kinds == ["ball"]:
-                if np.ndim(limit) != 0:
+                if real_array(f"limits[{name!r}]", limit).ndim != 0:
                     raise InputError(f"limits[{name!r}]: a ball joint takes one cone angle, "
-                                     f"got {limit!r}")
+                                     f"got {show(limit)}")
                 angle = float(check_real(f"limits[{name!r}]", limit, positive=True))
                 ball.append((model.q_start[j], model.v_start[j], angle, I_joint))
             else:
@@ -400,6 +418,22 @@ class JointLimits:
         return float(np.sum(self.h_k * e_h**2) + np.sum(self.b_k * e_b**2)) / 2
 
 
+def _has(element, method):
+    """Whether ``element`` has a callable ``method``."""
+    return callable(getattr(element, method, None))
+
+
+def _wrench(e):
+    """Whether ``e`` is a wrench element: ``wrenches(t, states)`` and ``bodies``."""
+    return _has(e, "wrenches") and hasattr(e, "bodies")
+
+
+def _is_element(e):
+    """Whether ``e`` has the interface of a force element: a wrench element, or
+    ``tau(t, q, qd, out)`` and ``energy(q)`` (a joint-space element), or both."""
+    return (_wrench(e) or _has(e, "tau")) and (_has(e, "energy") or not _has(e, "tau"))
+
+
 class Forces:
     """The sum of force ``elements`` on ``model``, as the simulator's callables.
 
@@ -407,17 +441,27 @@ class Forces:
     :meth:`external`; elements with ``tau(t, q, qd, out)`` (joint limits) give
     :meth:`controller`. The body states every wrench element needs are computed
     once per call, for those bodies only (an element whose ``needs_states`` is
-    False gets ``None``)."""
+    False gets ``None``). ``elements``: a list or tuple of such objects (an
+    element need not come from this module)."""
 
     def __init__(self, model, elements):
-        self.model = model
+        self.model = check_model(model)
+        if not isinstance(elements, (list, tuple)):
+            raise InputError(f"elements must be a list or tuple of force elements, got "
+                             f"{type(elements).__name__}: {show(elements)}")
         self.elements = tuple(elements)
-        for e in self.elements:
+        for i, e in enumerate(self.elements):
+            if not _is_element(e):
+                raise InputError(f"elements[{i}] is not a force element (an object with "
+                                 f"wrenches(t, states) and bodies, or tau(t, q, qd, out) and "
+                                 f"energy(q)), got {type(e).__name__}: {show(e)}")
             if getattr(e, "model", model) is not model:
                 raise InputError(f"force element {type(e).__name__} was built for another "
                                  f"model than {model.name!r}")
-        self.wrench_elements = [e for e in self.elements if hasattr(e, "wrenches")]
-        self.tau_elements = [e for e in self.elements if hasattr(e, "tau")]
+            if _wrench(e):
+                body_indices(model, e.bodies, f"elements[{i}].bodies")
+        self.wrench_elements = [e for e in self.elements if _wrench(e)]
+        self.tau_elements = [e for e in self.elements if _has(e, "tau")]
         self._needs = [getattr(e, "needs_states", True) for e in self.wrench_elements]
         bodies = [e.bodies for e, need in zip(self.wrench_elements, self._needs, strict=True)
                   if need]

@@ -85,8 +85,6 @@ INTEGRATORS = {"semi-implicit": semi_implicit_euler, "rk4": rk4}
 
 def get_integrator(name):
     """The integrator called ``name`` (``"semi-implicit"`` or ``"rk4"``)."""
-    try:
-        return INTEGRATORS[name]
-    except KeyError:
-        raise InputError(f"unknown integrator {name!r}; choose one of {sorted(INTEGRATORS)}") \
-            from None
+    if not isinstance(name, str) or name not in INTEGRATORS:
+        raise InputError(f"unknown integrator {name!r}; choose one of {sorted(INTEGRATORS)}")
+    return INTEGRATORS[name]

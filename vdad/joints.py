@@ -51,6 +51,19 @@ class Stage:
     stiffness: float = 0.0
     damping: float = 0.0
 
+    def __post_init__(self):
+        if not isinstance(self.kind, str) or self.kind not in STAGE_NAMES:
+            raise ModelError(f"unknown stage kind {self.kind!r}; expected one of {STAGE_NAMES}")
+        what = f"{self.kind} stage"
+        for name in ("axis", "anchor"):
+            v = check_vector(f"{what} {name}", getattr(self, name), 3, error=ModelError)
+            object.__setattr__(self, name, tuple(v.tolist()))
+        object.__setattr__(self, "ref", float(check_real(f"{what} ref", self.ref,
+                                                         error=ModelError)))
+        for name in ("stiffness", "damping"):
+            object.__setattr__(self, name, float(check_real(
+                f"{what} {name}", getattr(self, name), nonnegative=True, error=ModelError)))
+
     @property
     def code(self) -> int:
         return STAGE_NAMES.index(self.kind)
@@ -65,36 +78,29 @@ class Stage:
 
 
 def check_stage(stage: Stage, joint: str) -> Stage:
-    """Validate ``stage`` of ``joint``; return it with a unit axis."""
-    if stage.kind not in STAGE_NAMES:
-        raise ModelError(f"joint {joint!r}: unknown stage kind {stage.kind!r}; "
-                         f"expected one of {STAGE_NAMES}")
-    what = f"joint {joint!r}:"
-    axis = check_vector(f"{what} axis", stage.axis, 3, error=ModelError)
-    anchor = check_vector(f"{what} anchor", stage.anchor, 3, error=ModelError)
+    """``stage`` of ``joint`` (a :class:`Stage`, checked on construction) with a
+    unit axis; a hinge or slide about a zero axis is a ModelError."""
+    axis = np.array(stage.axis)
     norm = np.linalg.norm(axis)
     if stage.kind in ("hinge", "slide") and norm < 1e-12:
-        raise ModelError(f"{what} zero axis {tuple(axis)}")
-    ref = float(check_real(f"{what} ref", stage.ref, error=ModelError))
-    gains = [float(check_real(f"{what} {name}", getattr(stage, name), nonnegative=True,
-                              error=ModelError)) for name in ("stiffness", "damping")]
+        raise ModelError(f"joint {joint!r}: zero axis {tuple(axis)}")
     unit = tuple(axis / norm) if norm > 0 else (0.0, 0.0, 1.0)
-    return Stage(stage.kind, unit, tuple(anchor), ref, *gains)
+    return Stage(stage.kind, unit, stage.anchor, stage.ref, stage.stiffness, stage.damping)
 
 
 def revolute(axis=(0, 0, 1), anchor=(0, 0, 0), stiffness=0.0, damping=0.0, ref=0.0):
     """Stages of a revolute (hinge) joint about ``axis`` through ``anchor``."""
-    return (Stage("hinge", tuple(axis), tuple(anchor), ref, stiffness, damping),)
+    return (Stage("hinge", axis, anchor, ref, stiffness, damping),)
 
 
 def prismatic(axis=(0, 0, 1), stiffness=0.0, damping=0.0, ref=0.0):
     """Stages of a prismatic (slide) joint along ``axis``."""
-    return (Stage("slide", tuple(axis), ref=ref, stiffness=stiffness, damping=damping),)
+    return (Stage("slide", axis, ref=ref, stiffness=stiffness, damping=damping),)
 
 
 def spherical(anchor=(0, 0, 0), stiffness=0.0, damping=0.0):
     """Stages of a spherical (ball) joint: quaternion position, body-frame rate."""
-    return (Stage("ball", anchor=tuple(anchor), stiffness=stiffness, damping=damping),)
+    return (Stage("ball", anchor=anchor, stiffness=stiffness, damping=damping),)
 
 
 def free(stiffness=0.0, damping=0.0):

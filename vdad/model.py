@@ -85,7 +85,7 @@ class Geom:
     rgba: tuple = (0.7, 0.7, 0.7, 1.0)
 
     def __post_init__(self):
-        if self.kind not in GEOM_SIZES:
+        if not isinstance(self.kind, str) or self.kind not in GEOM_SIZES:
             raise ModelError(f"unknown geometry kind {show(self.kind)}; expected one of "
                              f"{sorted(GEOM_SIZES)}")
         n, meaning = GEOM_SIZES[self.kind]
@@ -215,7 +215,7 @@ class Joint:
             raise ModelError(f"{what} parent must be a body name or None (the world), got "
                              f"{show(self.parent)}")
         kinds = sorted(J.JOINT_TYPES) + ["composite"]
-        if self.kind not in kinds:
+        if not isinstance(self.kind, str) or self.kind not in kinds:
             raise ModelError(f"{what} unknown kind {show(self.kind)}; expected one of {kinds}")
         axis = check_vector(f"{what} axis", self.axis, 3, error=ModelError)
         if self.kind in ("revolute", "prismatic") and np.linalg.norm(axis) < 1e-12:
@@ -225,6 +225,9 @@ class Joint:
                              f"got {type(self.placement).__name__}: {show(self.placement)}")
         gains = {k: float(check_real(f"{what} {k}", getattr(self, k), nonnegative=True,
                                      error=ModelError)) for k in ("stiffness", "damping")}
+        if self.kind == "fixed" and any(gains.values()):
+            raise ModelError(f"{what} a fixed joint has no dofs: stiffness and damping do not "
+                             f"apply")
         stages = self.stages
         if not isinstance(stages, (tuple, list)):
             raise ModelError(f"{what} stages must be a tuple of vdad.joints.Stage, got "
@@ -344,6 +347,8 @@ class Model:
     def __init__(self, bodies, joints, gravity=(0.0, 0.0, -9.81), q_spring=None, name="model"):
         bodies = _sequence_of("bodies", bodies, Body)
         joints = _sequence_of("joints", joints, Joint)
+        if not isinstance(name, str) or not name:
+            raise ModelError(f"the model's name must be a non-empty string, got {show(name)}")
         self.name = name
         if not bodies:
             raise ModelError("a model needs at least one body")
@@ -474,6 +479,40 @@ def check_model(model):
     if not isinstance(model, Model):
         raise InputError(f"model must be a vdad.Model, got {type(model).__name__}")
     return model
+
+
+def whole_index(model, b):
+    """``b`` as a body (or joint) index of ``model`` if it is a whole number (not a
+    boolean) in range, else None."""
+    if isinstance(b, (bool, np.bool_)):
+        return None
+    if isinstance(b, (int, np.integer)) or (isinstance(b, (float, np.floating))
+                                            and float(b).is_integer()):
+        return int(b) if 0 <= b < model.nb else None
+    return None
+
+
+def body_indices(model, bodies, name="bodies"):
+    """Body indices (k,), k >= 1, from a body name or index or a sequence of them,
+    checked."""
+    if isinstance(bodies, (str, int, np.integer, float, np.floating)) \
+            and not isinstance(bodies, (bool, np.bool_)):
+        bodies = [bodies]
+    if isinstance(bodies, np.ndarray) and bodies.ndim <= 1:
+        bodies = np.atleast_1d(bodies).tolist()
+    if not isinstance(bodies, (list, tuple, range)):
+        raise InputError(f"{name} must be a body name or index or a list of them, got "
+                         f"{type(bodies).__name__}: {show(bodies)}")
+    if not len(bodies):
+        raise InputError(f"{name} is empty: give at least one body of {model.name!r}")
+    out = []
+    for b in bodies:
+        i = model.body_index(b) if isinstance(b, str) else whole_index(model, b)
+        if i is None:
+            raise InputError(f"{name}: {b!r} is neither a body name nor a body index of "
+                             f"{model.name!r} (0..{model.nb - 1})")
+        out.append(i)
+    return np.array(out, int)
 
 
 def check_configuration(model, name, q, error=InputError):

@@ -8,13 +8,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from .checks import check_vector
 from .dynamics import spring_displacements
 from .kinematics import kinematics
+from .model import check_configuration, check_model
 from .spatial import cross3, mv
+
+
+def _state(model, q, qd):
+    """``(q, qd)`` of ``model``, checked."""
+    check_model(model)
+    return check_configuration(model, "q", q), check_vector("qd", qd, model.nv)
 
 
 def kinetic_energy(model, q, qd):
     """``sum_i 1/2 m |v_c|^2 + 1/2 w^T I_c w`` over bodies."""
+    q, qd = _state(model, q, qd)
     kin = kinematics(model, q, qd)
     w = kin.v[:, :3]
     vc = kin.v[:, 3:] + cross3(w, model.com)
@@ -24,7 +33,8 @@ def kinetic_energy(model, q, qd):
 
 def potential_energy(model, q):
     """Gravity ``-sum m g · c`` plus the joint springs' energy."""
-    kin = kinematics(model, q, np.zeros(model.nv))
+    q, qd = _state(model, q, np.zeros(check_model(model).nv))
+    kin = kinematics(model, q, qd)
     c = kin.p + mv(kin.R, model.com)
     energy = -float(np.sum(model.mass * (c @ model.gravity)))
     for k, _, d in spring_displacements(model, q):
@@ -39,6 +49,7 @@ def total_energy(model, q, qd):
 
 def spatial_momentum(model, q, qd):
     """Total momentum (6,): (angular about the world origin; linear), world axes."""
+    q, qd = _state(model, q, qd)
     kin = kinematics(model, q, qd)
     w_body = kin.v[:, :3]
     vc_body = kin.v[:, 3:] + cross3(w_body, model.com)

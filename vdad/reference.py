@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .checks import check_vector, check_wrenches
-from .dynamics import passive_forces
+from .dynamics import check_overflow, passive_forces
 from .kinematics import joint_kinematics, plan, velocity_product
 from .model import check_configuration, check_model
 from .spatial import crf, crm, inertia_at_origin, pose_to_motion_transform
@@ -81,6 +81,7 @@ def rnea(model, q, qd, qdd, f_ext=None):
 
 def crba(model, q):
     """Joint-space mass matrix ``M`` (nv, nv) (RBDA Table 6.2)."""
+    check_model(model)
     _, _, Xup, I, Sj, dofs, _, _, _ = _setup(model, q, np.zeros(model.nv), None)
     Ic = I.copy()
     for i in range(model.nb - 1, -1, -1):
@@ -138,4 +139,4 @@ def aba(model, q, qd, tau=None, f_ext=None):
         a_p = Xup[i] @ (_a0(model) if p < 0 else a[p]) + c[i]
         qdd[dofs[i]] = Dinv[i] @ (u[i] - U[i].T @ a_p)
         a[i] = a_p + Sj[i] @ qdd[dofs[i]]
-    return qdd
+    return check_overflow(model, qdd, qd=qd, tau=tau)

@@ -246,13 +246,15 @@ def reproduce(out, quick=False, jobs=1, scheduler=None, progress=True, only=None
     that is unreadable or fails :func:`check_result` is recomputed, with one line
     on stderr), then write the tables, figures and ``report.md`` into ``out``.
     Returns the files written."""
-    from .sweep import ResultStore, run_sweep
+    from .sweep import ResultStore, check_scheduler, run_sweep
 
     only = list(EXPERIMENTS) if only is None else list(only)
     unknown = sorted(set(only) - set(EXPERIMENTS))
     if unknown:
         raise InputError(f"unknown experiments {unknown}; choose from {EXPERIMENTS}")
     _check_extras()
+    if scheduler is not None:
+        check_scheduler(scheduler)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     experiments = {k: v for k, v in plan(quick).items() if k in only}

@@ -20,12 +20,14 @@ from . import dca
 from .adaptive import AdaptiveDynamics, rotational_dofs
 from .assembly import check_tree
 from .baselines import DistanceLOD, Sleeping, articulated_bodies, root_last_tree
+from .camera import check_path
 from .checks import check_callable, check_count, check_real, check_vector, check_wrenches
 from .dynamics import default_tree, forward_dynamics_unchecked
+from .environment import check_environment
 from .errors import InputError, SimulationError
 from .integrators import get_integrator, normalize_configuration
 from .kinematics import world_poses
-from .model import check_configuration, check_model
+from .model import body_indices, check_configuration, check_model
 
 METHODS = ("dca", "adaptive", "view-bvh", "view-oq", "lod-distance", "sleeping")
 METHOD_OPTIONS = {"view-bvh": ("volume", "estimate", "resolution"),
@@ -204,7 +206,8 @@ class Simulator:
         self._rotational = rotational_dofs(model)
         self.history = []
         self.adaptive = None
-        self.camera, self.environment = camera, environment
+        self.camera = None if camera is None else check_path(camera)
+        self.environment = None if environment is None else check_environment(environment)
         if method != "dca":
             from .adaptive import AdaptiveDynamics
 
@@ -225,9 +228,10 @@ class Simulator:
             self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
 
     def body_poses(self, bodies=None):
-        """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of ``bodies`` (indices; default
-        all) in the current state. With ``"adaptive"`` only the active joints and
+        """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of ``bodies`` (names or indices;
+        default all) in the current state. With ``"adaptive"`` only the active joints and
         the requested bodies' rigid groups are evaluated."""
+        bodies = None if bodies is None else body_indices(self.model, bodies)
         if self.adaptive is not None:
             return self.adaptive.body_poses(self.q, bodies)
         R, p = world_poses(self.model, self.q)
@@ -267,7 +271,9 @@ class Simulator:
                     f"{joint!r} turns {abs(qd[fast[0]]) * self.dt:.3g} rad in one step (more "
                     f"than half a turn): the simulation is diverging; reduce the time step"
                     + (" or the adaptive threshold (dropped accelerations feed energy in)"
-                       if self.adaptive is not None else ""))
+                       if self.adaptive is not None else "")
+                    + ("; or the forces of controller / external are too large"
+                       if self.controller is not None or self.external is not None else ""))
             self.q, self.qd = q, qd
             self.step_count += 1
             self.t = self.step_count * self.dt

@@ -296,7 +296,7 @@ def run_sweep(fn, configs, store, jobs=1, scheduler=None, progress=True, desc="s
                              f"got {type(store).__name__}")
         store = ResultStore(store)
     if scheduler is not None:
-        _check_scheduler(scheduler)
+        check_scheduler(scheduler)
     if validate is not None and not callable(validate):
         raise InputError(f"validate must be None or a callable validate(result) -> str | None, "
                          f"got {type(validate).__name__}")
@@ -396,7 +396,7 @@ def _import_distributed():
     return distributed
 
 
-def _check_scheduler(scheduler):
+def check_scheduler(scheduler):
     """Validate ``scheduler``: a non-empty address string or a ``distributed.Client``."""
     distributed = _import_distributed()
     if isinstance(scheduler, str):

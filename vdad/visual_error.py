@@ -21,13 +21,15 @@ against a full-DCA reference run from the same initial state, in two ways:
 
 from __future__ import annotations
 
+import os
 import time
+import zipfile
 from dataclasses import dataclass
 
 import numpy as np
 
 from .camera import Camera, camera_at, check_path, check_resolution
-from .checks import check_count, check_finite, check_real
+from .checks import check_count, check_finite, check_flag, check_real, real_array, show
 from .environment import check_environment
 from .errors import InputError, SimulationError
 from .kinematics import world_poses
@@ -41,6 +43,19 @@ MEASURES = ("mean_px", "max_px", "differing_pixels")
 def _check_simulator(sim):
     if not isinstance(sim, Simulator):
         raise InputError(f"sim must be a vdad.Simulator, got {type(sim).__name__}")
+
+
+def _check_file(name, path):
+    """``path`` as a string if it is a file system path (str or os.PathLike)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"{name} must be a file path (str or os.PathLike), got "
+                         f"{type(path).__name__}: {show(path)}")
+    return os.fspath(path)
+
+
+def _cause(exc):
+    """What an OSError says went wrong, without the path it repeats."""
+    return exc.strerror or str(exc)
 
 
 def reference_simulator(sim) -> Simulator:
@@ -64,7 +79,8 @@ def reference_simulator(sim) -> Simulator:
 class Trajectory:
     """Kim 2008 §3.1.2: a recorded animation segment: times ``t`` (F,) of its frames,
     configurations ``q`` (F, nq) at those times, and ``ms_per_step``, the wall time
-    per step of the run that produced it (NaN if unknown)."""
+    per step of the run that produced it (NaN if unknown). The frames are at
+    increasing times."""
 
     t: np.ndarray
     q: np.ndarray
@@ -76,26 +92,52 @@ class Trajectory:
         if t.ndim != 1 or q.ndim != 2 or len(q) != len(t):
             raise InputError(f"a trajectory needs t (F,) and q (F, nq), got t {t.shape} and "
                              f"q {q.shape}")
-        ms = float(np.asarray(self.ms_per_step, dtype=float))
-        if not (np.isnan(ms) or ms >= 0):
-            raise InputError(f"ms_per_step must be >= 0 or NaN, got {self.ms_per_step!r}")
+        back = np.flatnonzero(np.diff(t) <= 0)
+        if len(back):
+            k = back[0] + 1
+            raise InputError(f"t must increase from frame to frame, got t[{k}] = {float(t[k])} "
+                             f"after t[{k - 1}] = {float(t[k - 1])}")
+        ms = real_array("ms_per_step", self.ms_per_step)
+        if ms.ndim or not np.isnan(ms):
+            ms = check_real("ms_per_step (NaN if unknown)", self.ms_per_step, nonnegative=True)
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "q", q)
-        object.__setattr__(self, "ms_per_step", ms)
+        object.__setattr__(self, "ms_per_step", float(ms))
 
     def save(self, path):
         """Write the trajectory to ``path`` as an ``.npz`` archive (at that exact path)."""
-        with open(path, "wb") as fh:
-            np.savez(fh, t=self.t, q=self.q, ms_per_step=self.ms_per_step)
+        path = _check_file("path", path)
+        try:
+            with open(path, "wb") as fh:
+                np.savez(fh, t=self.t, q=self.q, ms_per_step=self.ms_per_step)
+        except OSError as exc:
+            raise InputError(f"cannot write the Trajectory to {path!r}: {_cause(exc)}") from None
 
     @classmethod
     def load(cls, path) -> Trajectory:
-        """The trajectory that :meth:`save` wrote to ``path``."""
-        with np.load(path, allow_pickle=False) as data:
+        """The trajectory that :meth:`save` wrote to ``path`` (read without pickles)."""
+        path = _check_file("path", path)
+        not_saved = f"{path!r} is not a Trajectory written by Trajectory.save"
+        try:
+            data = np.load(path, allow_pickle=False)
+        except OSError as exc:
+            raise InputError(f"cannot read a Trajectory from {path!r}: {_cause(exc)}") from None
+        except (ValueError, EOFError, zipfile.BadZipFile):
+            raise InputError(f"{not_saved}: it is not an .npz archive") from None
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise InputError(f"{not_saved}: it holds one array (.npy), not an .npz archive")
+        with data:
             missing = sorted({"t", "q", "ms_per_step"} - set(data.files))
             if missing:
-                raise InputError(f"{path} is not a saved Trajectory: it lacks {missing}")
-            return cls(data["t"], data["q"], float(data["ms_per_step"]))
+                raise InputError(f"{not_saved}: it lacks {missing}")
+            try:
+                t, q, ms = data["t"], data["q"], data["ms_per_step"]
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                raise InputError(f"{not_saved}: its arrays cannot be read ({exc})") from None
+        try:
+            return cls(t, q, ms)
+        except InputError as exc:
+            raise InputError(f"{not_saved}: {exc}") from None
 
 
 def _frames(steps, every):
@@ -109,11 +151,13 @@ def _frames(steps, every):
 def record(sim, steps, every=1, progress=False) -> Trajectory:
     """Kim 2008 §3.1.2: step ``sim`` ``steps`` times and keep the state after every
     ``every``-th step (frames at steps ``every``, ``2 every``, ...). Only the
-    ``sim.step`` calls are timed, for ``ms_per_step``."""
+    ``sim.step`` calls are timed, for ``ms_per_step``; ``progress`` (bool) shows a
+    progress bar."""
     from tqdm import tqdm
 
     _check_simulator(sim)
     steps, every, frames = _frames(steps, every)
+    progress = check_flag("progress", progress)
     t = np.empty(frames)                                    # (F,)
     q = np.empty((frames, sim.model.nq))                    # (F, nq)
     elapsed = 0.0
@@ -213,14 +257,15 @@ class VisualError:
     occlusion ignored) and (b) ``differing_pixels``, the paper's count of pixels
     whose rendered body differs (id images of one
     :class:`~vdad.render.counting.PixelCounter`, ``"merged"``; needs EGL). With
-    ``pixels=False``, (b) is skipped (None) and nothing renders.
+    ``pixels=False``, (b) is skipped (None) and nothing renders (``pixels`` is a bool).
     """
 
     def __init__(self, model, camera, environment=None, resolution=None, per_body=64,
                  pixels=True):
         self.model, self.camera = check_model(model), check_path(camera)
         self.environment = check_environment(environment)
-        self.resolution, self.pixels = check_resolution(resolution), bool(pixels)
+        self.resolution = check_resolution(resolution)
+        self.pixels = check_flag("pixels", pixels)
         self.body, self.local = surface_points(model, per_body)    # (P,), (P, 3)
         self._counter = None
 
@@ -274,7 +319,8 @@ class VisualError:
 @dataclass(frozen=True, eq=False)
 class ErrorTrace:
     """Kim 2008 §3.1.2: the static errors of every compared frame: times ``t``,
-    ``mean_px``, ``max_px`` and ``differing_pixels`` (F,) (NaN where not measured)."""
+    ``mean_px``, ``max_px`` and ``differing_pixels`` (F,) (NaN where not measured;
+    the times are finite)."""
 
     t: np.ndarray
     mean_px: np.ndarray
@@ -282,8 +328,8 @@ class ErrorTrace:
     differing_pixels: np.ndarray
 
     def __post_init__(self):
-        columns = {name: np.asarray(getattr(self, name), dtype=float)
-                   for name in ("t", *MEASURES)}
+        columns = {"t": check_finite("t", self.t)}
+        columns.update((name, real_array(name, getattr(self, name))) for name in MEASURES)
         shapes = {name: a.shape for name, a in columns.items()}
         if any(len(shape) != 1 or shape != shapes["t"] for shape in shapes.values()):
             raise InputError(f"an error trace needs arrays of one shape (F,), got {shapes}")
@@ -306,9 +352,13 @@ class ErrorTrace:
 
     def to_csv(self, path):
         """Write the columns ``t,mean_px,max_px,differing_pixels`` to ``path``."""
+        path = _check_file("path", path)
         table = np.column_stack([self.t, *(getattr(self, name) for name in MEASURES)])
-        np.savetxt(path, table.reshape(-1, 4), fmt="%.17g", delimiter=",", comments="",
-                   header=",".join(("t", *MEASURES)))
+        try:
+            np.savetxt(path, table.reshape(-1, 4), fmt="%.17g", delimiter=",", comments="",
+                       header=",".join(("t", *MEASURES)))
+        except OSError as exc:
+            raise InputError(f"cannot write the error trace to {path!r}: {_cause(exc)}") from None
 
 
 def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
@@ -318,9 +368,10 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
     :class:`Trajectory` recorded with the same time step and ``every`` (its frame
     times must match), or None for a :func:`reference_simulator` of ``sim``
     stepped in lockstep. ``camera`` (Camera or path) and ``environment`` default to
-    ``sim``'s; ``resolution``, ``pixels`` and ``per_body`` go to
-    :class:`VisualError`. A :class:`~vdad.errors.SimulationError` of ``sim``
-    (a diverging simplified run) stops the run there, with the frames so far.
+    ``sim``'s; ``resolution``, ``pixels`` (bool) and ``per_body`` go to
+    :class:`VisualError`; ``progress`` (bool) shows a progress bar. A
+    :class:`~vdad.errors.SimulationError` of ``sim`` (a diverging simplified run)
+    stops the run there, with the frames so far.
 
     Returns the :class:`ErrorTrace` and a dict ``info``: ``ms_per_step`` (of the
     ``sim.step`` calls only), ``reference_ms_per_step`` (of the lockstep reference
@@ -331,6 +382,7 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
 
     _check_simulator(sim)
     steps, every, frames = _frames(steps, every)
+    pixels, progress = check_flag("pixels", pixels), check_flag("progress", progress)
     times = (sim.step_count + every * np.arange(1, frames + 1)) * sim.dt   # (F,)
     if reference is None:
         reference = reference_simulator(sim)

@@ -30,10 +30,10 @@ import warnings
 
 import numpy as np
 
-from ..checks import check_vector, reject_unknown, show
+from ..checks import check_finite, check_flag, check_vector, reject_unknown, show
 from ..errors import InputError, ModelError, UnsupportedFeatureError
 from ..joints import BALL, HINGE, TRANSLATION, Stage
-from ..model import Body, Geom, Joint, Model, Pose
+from ..model import Body, Geom, Joint, Model, Pose, check_model
 from ..spatial import quat_to_rot, rot_to_quat
 
 LAYOUT_TEXT = "vdad_layout"
@@ -54,6 +54,25 @@ def _unique(name, taken):
         k += 1
     taken.add(name)
     return name
+
+
+def _check_mujoco(m, d=None, name="mjmodel"):
+    """An InputError unless ``m`` (argument ``name``) is a ``mujoco.MjModel`` and ``d``
+    (if given) a ``mujoco.MjData`` of its size."""
+    import mujoco
+
+    if not isinstance(m, mujoco.MjModel):
+        raise InputError(f"{name} must be a compiled mujoco.MjModel (e.g. of to_mujoco), got "
+                         f"{type(m).__name__}: {show(m)}")
+    if d is None:
+        return
+    if not isinstance(d, mujoco.MjData):
+        raise InputError(f"mjdata must be a mujoco.MjData (mujoco.MjData(mjmodel)), got "
+                         f"{type(d).__name__}: {show(d)}")
+    if (len(d.qpos), len(d.qvel), len(d.xfrc_applied)) != (m.nq, m.nv, m.nbody):
+        raise InputError(f"mjdata does not belong to mjmodel: it has nq={len(d.qpos)}, "
+                         f"nv={len(d.qvel)}, nbody={len(d.xfrc_applied)}, the model nq={m.nq}, "
+                         f"nv={m.nv}, nbody={m.nbody}; make it with mujoco.MjData(mjmodel)")
 
 
 def _unsupported(strict, message):
@@ -217,9 +236,9 @@ def from_mujoco(m, *, strict=True) -> Model:
     Raises :class:`vdad.UnsupportedFeatureError`, naming the culprit, on mocap
     bodies, massless bodies, free joints below a body, nonzero armature or
     frictionloss, equality constraints, tendons, actuators, fluid forces and
-    gravity compensation. With ``strict=False`` tendons, actuators, equality
-    constraints, armature, frictionloss, fluid forces and gravity compensation
-    are dropped with a warning instead.
+    gravity compensation. With ``strict=False`` (a bool) tendons, actuators,
+    equality constraints, armature, frictionloss, fluid forces and gravity
+    compensation are dropped with a warning instead.
     """
     import mujoco
 
@@ -227,6 +246,7 @@ def from_mujoco(m, *, strict=True) -> Model:
         raise InputError(f"from_mujoco takes a compiled mujoco.MjModel, got "
                          f"{type(m).__name__}: {show(m)}; for an MJCF file use "
                          f"vdad.load_mjcf(path)")
+    strict = check_flag("strict", strict)
     obj = mujoco.mjtObj
     _check_model_features(m, strict)
     flags = int(m.opt.disableflags)
@@ -283,6 +303,7 @@ def load_mjcf(path, strict=True, **unknown) -> Model:
     import mujoco
 
     reject_unknown("load_mjcf", unknown, ("path", "strict"))
+    strict = check_flag("strict", strict)
     if not isinstance(path, (str, os.PathLike)):
         raise InputError(f"load_mjcf takes the path of an MJCF file, got "
                          f"{type(path).__name__}: {show(path)}")
@@ -369,6 +390,7 @@ def to_mjspec(model):
     """
     import mujoco
 
+    check_model(model)
     spec = mujoco.MjSpec()
     spec.modelname = model.name
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
@@ -442,6 +464,7 @@ def mujoco_layout(m):
     """
     import mujoco
 
+    _check_mujoco(m, name="m")
     nb = m.nbody - 1
     if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXT, LAYOUT_TEXT) < 0:
         return np.arange(1, nb + 1), np.arange(m.nq), np.arange(m.nv)
@@ -463,7 +486,7 @@ def to_mujoco(model):
     """``(mjModel, mjData)`` of :func:`to_mjspec` (``model``), with ``qpos_spring`` set."""
     import mujoco
 
-    m = to_mjspec(model).compile()
+    m = to_mjspec(check_model(model)).compile()
     _, qpos, _ = mujoco_layout(m)
     m.qpos_spring[qpos] = model.q_spring
     return m, mujoco.MjData(m)
@@ -474,15 +497,21 @@ def mujoco_forward(mjmodel, mjdata, q, qd, tau=None, f_ext=None):
 
     Sets ``qpos``, ``qvel``, ``qfrc_applied`` (``tau``) and ``xfrc_applied``
     (``f_ext`` (nb, 6): torque about the centre of mass, force; world axes (3)),
-    zeroes ``ctrl`` and calls ``mj_forward``.
+    zeroes ``ctrl`` and calls ``mj_forward``. ``mjdata`` is ``mujoco.MjData(mjmodel)``.
     """
     import mujoco
 
     m, d = mjmodel, mjdata
+    _check_mujoco(m, d)
     body, qpos, qvel = mujoco_layout(m)
     q = check_vector("q", q, m.nq)
     qd = check_vector("qd", qd, m.nv)
     tau = check_vector("tau", tau, m.nv, allow_none=True)
+    if f_ext is not None:
+        f_ext = check_finite("f_ext", f_ext)
+        if f_ext.shape != (len(body), 6):
+            raise InputError(f"f_ext must have shape ({len(body)}, 6) (torque about the centre "
+                             f"of mass; force, world axes), got {f_ext.shape}")
     d.qpos[qpos] = q
     d.qvel[qvel] = qd
     d.qfrc_applied[:] = 0.0
@@ -490,10 +519,6 @@ def mujoco_forward(mjmodel, mjdata, q, qd, tau=None, f_ext=None):
         d.qfrc_applied[qvel] = tau
     d.xfrc_applied[:] = 0.0
     if f_ext is not None:
-        f_ext = np.asarray(f_ext, dtype=float)
-        if f_ext.shape != (len(body), 6) or not np.all(np.isfinite(f_ext)):
-            raise InputError(f"f_ext must be a finite ({len(body)}, 6) array, got shape "
-                             f"{f_ext.shape}")
         d.xfrc_applied[body] = f_ext[:, _XFRC_FROM_FEXT]
     if m.nu:
         d.ctrl[:] = 0.0

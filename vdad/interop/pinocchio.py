@@ -28,14 +28,18 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..checks import check_vector, check_wrenches
+from ..checks import check_vector, check_wrenches, show
 from ..dynamics import passive_forces
-from ..errors import UnsupportedFeatureError
-from ..joints import BALL, HINGE, SLIDE, TRANSLATION
+from ..errors import InputError, UnsupportedFeatureError
+from ..joints import BALL, HINGE, SLIDE, STAGE_NAMES, TRANSLATION
+from ..model import check_model
 from ..spatial import quat_to_rot
 
 _KINDS = {(HINGE,): "revolute", (SLIDE,): "prismatic", (BALL,): "spherical",
           (TRANSLATION, BALL): "free", (): "fixed"}
+_PIN_JOINTS = {"revolute": "JointModelRevoluteUnaligned",       # Pinocchio joint of each kind
+               "prismatic": "JointModelPrismaticUnaligned",
+               "spherical": "JointModelSpherical", "free": "JointModelFreeFlyer"}
 
 
 @lru_cache(maxsize=64)
@@ -51,10 +55,11 @@ def _layout(model):
     for i in range(model.nb):
         name = model.joint_names[i]
         stages = np.flatnonzero(model.stage_joint == i)
-        kind = _KINDS.get(tuple(int(model.stage_kind[s]) for s in stages))
+        codes = tuple(int(model.stage_kind[s]) for s in stages)
+        kind = _KINDS.get(codes)
         if kind is None:
             raise UnsupportedFeatureError(
-                f"joint {name!r}: stages {[int(model.stage_kind[s]) for s in stages]} have no "
+                f"joint {name!r}: stages {' + '.join(STAGE_NAMES[c] for c in codes)} have no "
                 f"Pinocchio counterpart (revolute, prismatic, spherical, free or fixed only)")
         for s in stages:
             if model.stage_kind[s] in (HINGE, BALL) and np.any(model.stage_anchor[s]):
@@ -89,6 +94,7 @@ def to_pinocchio(model):
     """
     import pinocchio as pin
 
+    check_model(model)
     pm = pin.Model()
     pm.name = model.name
     pm.gravity = pin.Motion(np.asarray(model.gravity, dtype=float), np.zeros(3))
@@ -105,10 +111,8 @@ def to_pinocchio(model):
             continue
         parent_jid, Rp, pp = joint
         axis = np.asarray(model.stage_axis[model.stage_joint == i][0], dtype=float)
-        jmodel = {"revolute": lambda a=axis: pin.JointModelRevoluteUnaligned(a),
-                  "prismatic": lambda a=axis: pin.JointModelPrismaticUnaligned(a),
-                  "spherical": pin.JointModelSpherical,
-                  "free": pin.JointModelFreeFlyer}[kind]()
+        jtype = getattr(pin, _PIN_JOINTS[kind])
+        jmodel = jtype(axis) if kind in ("revolute", "prismatic") else jtype()
         new = pm.addJoint(parent_jid, jmodel, pin.SE3(Rp, pp), model.joint_names[i])
         assert new == jid
         frame_of_joint[jid] = pm.addJointFrame(jid, frame_of_joint[parent_jid])
@@ -143,23 +147,64 @@ def _to_pin_state(pmodel, vmodel, q, qd, tau):
     return qp, vp, taup, rot
 
 
+def _check_pinocchio(pmodel, pdata, vmodel):
+    """An InputError unless ``pmodel`` is a ``pinocchio.Model`` laid out as
+    :func:`to_pinocchio` (``vmodel``) (as many body frames as ``vmodel`` has bodies,
+    its ``nq``/``nv``, a Pinocchio joint of the kind it makes for each moving joint)
+    and ``pdata`` a ``pinocchio.Data`` of its size. Returns ``_layout(vmodel)``."""
+    import pinocchio as pin
+
+    if not isinstance(pmodel, pin.Model):
+        raise InputError(f"pmodel must be a pinocchio.Model (to_pinocchio(vmodel)), got "
+                         f"{type(pmodel).__name__}: {show(pmodel)}")
+    if not isinstance(pdata, pin.Data):
+        raise InputError(f"pdata must be a pinocchio.Data (pmodel.createData()), got "
+                         f"{type(pdata).__name__}: {show(pdata)}")
+    check_model(vmodel)
+    layout = _layout(vmodel)
+    moving = [(i, row[1]) for i, row in enumerate(layout) if row[0] != "fixed"]
+    bodies = sum(f.type == pin.FrameType.BODY for f in pmodel.frames)
+    got = (bodies, pmodel.njoints - 1, pmodel.nq, pmodel.nv)
+    want = (vmodel.nb, len(moving), vmodel.nq, vmodel.nv)
+    if got != want:
+        raise InputError(f"pmodel does not match vmodel {vmodel.name!r}: it has {got[0]} bodies, "
+                         f"{got[1]} moving joints, nq={got[2]}, nv={got[3]}, vmodel {want[0]}, "
+                         f"{want[1]}, nq={want[2]}, nv={want[3]}; pass "
+                         f"pmodel = to_pinocchio(vmodel)")
+    for i, jid in moving:
+        got, want = pmodel.joints[jid].shortname(), _PIN_JOINTS[layout[i][0]]
+        if got != want:
+            raise InputError(f"pmodel does not match vmodel {vmodel.name!r}: its joint {jid} "
+                             f"({pmodel.names[jid]!r}) is a {got}, vmodel's joint "
+                             f"{vmodel.joint_names[i]!r} needs a {want}; pass "
+                             f"pmodel = to_pinocchio(vmodel)")
+    # sizes only: pinocchio's Model.check(data) also fails on fresh data of trees whose
+    # joints are not in depth-first order, which to_pinocchio keeps (vdad's body order)
+    if (len(pdata.oMi), len(pdata.ddq)) != (pmodel.njoints, pmodel.nv):
+        raise InputError(f"pdata does not belong to pmodel: it has {len(pdata.oMi)} joints and "
+                         f"nv={len(pdata.ddq)}, pmodel {pmodel.njoints} and nv={pmodel.nv}; "
+                         f"make it with pmodel.createData()")
+    return layout
+
+
 def pinocchio_forward(pmodel, pdata, vmodel, q, qd, tau=None, f_ext=None):
     """``qdd`` (vdad layout) of vdad model ``vmodel`` by ``pinocchio.aba``.
 
     ``pmodel``/``pdata``: :func:`to_pinocchio` (``vmodel``) and its data; ``tau``
     (nv,) actuation, to which vdad's springs and dampers are added; ``f_ext``
     (nb, 6) as in :func:`vdad.forward_dynamics`. Body poses for (4) come from
-    Pinocchio's own forward kinematics.
+    Pinocchio's own forward kinematics. A ``pmodel`` whose joints do not match
+    ``vmodel``'s, or a ``pdata`` of another model, is an :class:`~vdad.InputError`.
     """
     import pinocchio as pin
 
+    layout = _check_pinocchio(pmodel, pdata, vmodel)
     q = check_vector("q", q, vmodel.nq)
     qd = check_vector("qd", qd, vmodel.nv)
     tau = check_vector("tau", tau, vmodel.nv, allow_none=True)
     f_ext = check_wrenches(vmodel, f_ext)
     tau_total = passive_forces(vmodel, q, qd) + (0.0 if tau is None else tau)
     qp, vp, taup, rot = _to_pin_state(pmodel, vmodel, q, qd, tau_total)
-    layout = _layout(vmodel)
     if f_ext is None:
         a = pin.aba(pmodel, pdata, qp, vp, taup)
     else:

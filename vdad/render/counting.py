@@ -133,7 +133,8 @@ class PixelCounter:
                  sections=8):
         check_model(model)
         if method not in METHODS:
-            raise InputError(f"method must be one of {METHODS}, got {method!r}")
+            raise InputError(f"the counting method (counting= of view-oq) must be one of "
+                             f"{METHODS}, got {method!r}")
         self.width, self.height = _positive("width", width), _positive("height", height)
         environment = check_environment(environment)
         self.model, self.environment, self.method = model, environment, method

@@ -490,6 +490,19 @@ def motion_strip(images, columns=None, gap=4, labels=None) -> np.ndarray:
     return out
 
 
+def check_output(path) -> Path:
+    """``path`` as a Path that :func:`write` can write: one of :data:`SUFFIXES`,
+    in an existing folder; else an InputError (checked before a run, too)."""
+    path = Path(path)
+    if path.suffix.lower() not in SUFFIXES:
+        raise InputError(f"cannot write {str(path)!r}: the suffix must be one of "
+                         f"{', '.join(SUFFIXES)}")
+    if not path.parent.is_dir():
+        raise InputError(f"cannot write {str(path)!r}: folder {str(path.parent)!r} does not "
+                         f"exist")
+    return path
+
+
 def write(frames_or_images, path, fps=30) -> list:
     """Write frames (:class:`Frame` or images) by the suffix of ``path``: ``.png``
     one image to ``path``, several to ``STEM_0000.png``, ``STEM_0001.png``, ...;
@@ -498,17 +511,11 @@ def write(frames_or_images, path, fps=30) -> list:
     ``.mp4`` an H.264 video (imageio with imageio-ffmpeg; odd sizes padded with a
     white row or column). Returns the paths written."""
     images = _images(frames_or_images)
-    path = Path(path)
+    path = check_output(path)
     suffix = path.suffix.lower()
-    if suffix not in SUFFIXES:
-        raise InputError(f"cannot write {str(path)!r}: the suffix must be one of "
-                         f"{', '.join(SUFFIXES)}")
     if not (isinstance(fps, (int, float, np.integer, np.floating)) and not isinstance(
             fps, bool) and np.isfinite(fps) and fps > 0):
         raise InputError(f"fps must be a positive number, got {fps!r}")
-    if not path.parent.is_dir():
-        raise InputError(f"cannot write {str(path)!r}: folder {str(path.parent)!r} does not "
-                         f"exist")
     if suffix != ".png" and len({image.shape for image in images}) > 1:
         raise InputError(f"the frames of a {suffix} must all have the same size, got "
                          f"{sorted({image.shape[:2] for image in images})}")

@@ -1,5 +1,6 @@
 """A scene: a model, its initial state, time step and the forces that drive it;
-and :func:`rod`, the capsule link the scenes are built from."""
+and :func:`rod`, the capsule link the scenes are built from; and
+:func:`scene_resolution`, the check of the scenes' ``resolution`` argument."""
 
 from __future__ import annotations
 
@@ -7,9 +8,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..camera import check_resolution
+from ..checks import check_real, check_vector, show
 from ..errors import InputError
 from ..model import Body, Geom, Pose
 from ..simulator import METHODS, Simulator, with_defaults
+
+
+def scene_resolution(resolution):
+    """A scene's ``resolution`` as ``(width, height)`` ints: two positive whole
+    numbers of pixels (None is an error: a scene's camera needs a size)."""
+    if resolution is None:
+        raise InputError("resolution must be (width, height) in pixels, got None")
+    return check_resolution(resolution)
 
 
 def rod(name, mass, a, b, radius, rgba=(0.7, 0.7, 0.7, 1.0)) -> Body:
@@ -17,11 +28,14 @@ def rod(name, mass, a, b, radius, rgba=(0.7, 0.7, 0.7, 1.0)) -> Body:
     (body frame) with ``radius``, drawn as a capsule: centre of mass at the
     middle, inertia of a cylinder of that length, ``m (3 r^2 + L^2) / 12`` across
     and ``m r^2 / 2`` along the axis."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
+    what = f"rod {name!r}:"
+    mass = float(check_real(f"{what} mass", mass, positive=True))
+    radius = float(check_real(f"{what} radius", radius, positive=True))
+    a, b = check_vector(f"{what} a", a, 3), check_vector(f"{what} b", b, 3)
     L = float(np.linalg.norm(b - a))
-    if not (mass > 0 and radius > 0 and L > 0):
-        raise InputError(f"rod {name!r}: mass, radius and length must be positive, got "
-                         f"{mass}, {radius}, {L}")
+    if not L > 0:
+        raise InputError(f"{what} its ends a and b must differ (length 0), got a = b = "
+                         f"{show(a.tolist())}")
     u = (b - a) / L
     across, along = mass * (3 * radius**2 + L**2) / 12, mass * radius**2 / 2
     inertia = across * (np.eye(3) - np.outer(u, u)) + along * np.outer(u, u)
@@ -68,10 +82,18 @@ class Scene:
     defaults: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        wrong = sorted(set(self.defaults) - set(METHODS))
+        if not isinstance(self.defaults, dict):
+            raise InputError(f"scene {self.name!r}: defaults must be a dict {{method: {{option: "
+                             f"value}}}}, got {type(self.defaults).__name__}: "
+                             f"{show(self.defaults)}")
+        wrong = sorted(set(self.defaults) - set(METHODS), key=str)
         if wrong:
             raise InputError(f"scene {self.name!r}: defaults for unknown methods {wrong}; "
                              f"methods are {METHODS}")
+        for method, options in self.defaults.items():
+            if not (isinstance(options, dict) and all(isinstance(k, str) for k in options)):
+                raise InputError(f"scene {self.name!r}: defaults[{method!r}] must be a dict "
+                                 f"{{option: value}}, got {show(options)}")
 
     def simulator(self, **options) -> Simulator:
         """``docs/scenes.md``, method defaults: a :class:`~vdad.Simulator` started at

@@ -13,7 +13,7 @@ from ..errors import InputError
 from ..forces import BodyStates, FloorContact, Forces, JointLimits, joint_inertia
 from ..model import Joint, Model, Pose
 from ..spatial import quat_exp, quat_mul
-from .base import Scene, rod
+from .base import Scene, rod, scene_resolution
 
 SKIN, SHIRT, TROUSERS = (0.9, 0.75, 0.62, 1.0), (0.25, 0.45, 0.75, 1.0), (0.3, 0.3, 0.35, 1.0)
 
@@ -106,7 +106,8 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
     The :func:`humanoid` starts upright, ``drop`` m above the floor ``z = 0``,
     leaning forward by ``lean`` rad, with a forward ``push`` (m/s at the pelvis)
     and small random joint angles (``seed``); its joints are damped by
-    ``joint_damping`` (:func:`humanoid`). Contact:
+    ``joint_damping`` (:func:`humanoid`); ``drop`` >= 0 and ``|lean|`` <= pi/2
+    (it starts above the floor, leaning, not upside down). Contact:
     :class:`~vdad.forces.FloorContact` on every body's capsule (natural frequency
     ``floor_frequency`` rad/s, Coulomb ``friction``); joint limits:
     :class:`~vdad.forces.JointLimits` (knees and elbows bend one way, ball joints
@@ -118,16 +119,21 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
     (view-oq); lod-distance rigid beyond twice ``camera_distance`` (6 m: after
     about 1 s of the dolly); sleeping generic.
     """
+    width, height = scene_resolution(resolution)
     for name, v in (("dt", dt), ("camera_distance", camera_distance),
-                    ("floor_frequency", floor_frequency)):
+                    ("floor_frequency", floor_frequency), ("scale", scale)):
         check_real(name, v, positive=True)
     seed = check_count("seed", seed, 0)
     if floor_frequency * dt > 0.5:
         raise InputError(f"floor_frequency * dt = {floor_frequency * dt:.3g} > 0.5: the floor "
                          f"contact is unstable at this time step; lower one of them")
-    for name, v in (("lean", lean), ("drop", drop), ("push", push),
-                    ("camera_speed", camera_speed)):
+    for name, v in (("push", push), ("camera_speed", camera_speed)):
         check_real(name, v)
+    for name, v in (("drop", drop), ("joint_damping", joint_damping), ("friction", friction)):
+        check_real(name, v, nonnegative=True)
+    if abs(float(check_real("lean", lean))) > np.pi / 2:
+        raise InputError(f"lean must be within [-pi/2, pi/2] rad (a lean from upright), got "
+                         f"{lean}")
     model, limits = humanoid(scale, joint_damping)
     rng = np.random.default_rng(seed)
     q0 = np.array(model.q_neutral)
@@ -152,8 +158,8 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
     qd0[model.v_start[model.joint_index("pelvis")]] = push
     forces = Forces(model, [contact, JointLimits(model, limits)])
     camera = Camera(position=(0.6 * camera_distance, -0.8 * camera_distance, 1.0 * scale),
-                    target=(0.5 * scale, 0.0, 0.45 * scale), width=resolution[0],
-                    height=resolution[1], znear=0.05, zfar=200.0)
+                    target=(0.5 * scale, 0.0, 0.45 * scale), width=width,
+                    height=height, znear=0.05, zfar=200.0)
     path = Dolly(camera, camera_speed) if camera_speed else camera
     return Scene("falling_character", f"a {model.nb}-body character falling onto a floor "
                  f"while the viewer moves away", model, q0, qd0, dt,
@@ -162,7 +168,7 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
                  params=dict(dt=dt, scale=scale, lean=lean, drop=drop, push=push, seed=seed,
                              joint_damping=joint_damping, floor_frequency=floor_frequency,
                              friction=friction, camera_distance=camera_distance,
-                             camera_speed=camera_speed, resolution=tuple(resolution)),
+                             camera_speed=camera_speed, resolution=(width, height)),
                  defaults={"adaptive": {"threshold": 1e-5}, "view-bvh": {"threshold": 3e-3},
                            "view-oq": {"threshold": 3e-5},
                            "lod-distance": {"distance": 2.0 * camera_distance}})

@@ -8,13 +8,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera
-from ..checks import check_count, check_real
+from ..checks import check_callable, check_count, check_real, real_array, show
 from ..environment import wall
-from ..errors import InputError
-from ..forces import BodyStates, Drag, Forces, RandomTorques, Springs
+from ..errors import InputError, VdadError
+from ..forces import MAX_PULSE_RATE, BodyStates, Drag, Forces, RandomTorques, Springs
 from ..model import Joint, Model, Pose
 from ..spatial import mv, quat_exp, quat_to_rot
-from .base import Scene, rod
+from .base import Scene, rod, scene_resolution
 
 BROWN, DARK, LIGHT = (0.62, 0.42, 0.25, 1.0), (0.35, 0.22, 0.12, 1.0), (0.8, 0.65, 0.45, 1.0)
 LEGS = ("front_left", "front_right", "back_left", "back_right")
@@ -31,6 +31,10 @@ def toy_dog(prefix=""):
     joints: weak springs towards the standing pose and light damping.
     Returns ``(bodies, joints)`` lists to build a :class:`~vdad.Model` from.
     """
+    if not isinstance(prefix, str):
+        raise InputError(f"prefix must be a string (prepended to the body and joint names), "
+                         f"got {type(prefix).__name__}: {show(prefix)}")
+
     def n(name):
         return f"{prefix}{name}"
 
@@ -85,7 +89,8 @@ class StickPath:
     (k,), eased in and out between keyframes (smoothstep: no jerk at the keys),
     held after the last, and rocked about its long x axis by ``rock`` rad at
     ``rock_hz`` (rocking lifts the left and right legs in turn: the dog walks).
-    ``anchors(t)`` gives the world points of the strings' upper ends (6, 3)."""
+    ``anchors(t)`` gives the world points of the strings' upper ends (6, 3).
+    The fields are checked and stored as tuples of floats and floats."""
 
     times: tuple
     positions: tuple
@@ -93,14 +98,20 @@ class StickPath:
     rock_hz: float = 1.5
 
     def __post_init__(self):
-        t = np.asarray(self.times, float)
-        p = np.asarray(self.positions, float)
+        t = real_array("times", self.times)
+        p = real_array("positions", self.positions)
         if t.ndim != 1 or p.shape != (len(t), 3) or len(t) == 0:
-            raise InputError(f"stick path needs times (k,) and positions (k, 3), got "
+            raise InputError(f"stick path needs times (k,) and positions (k, 3), k >= 1, got "
                              f"{t.shape} and {p.shape}")
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p))) or np.any(np.diff(t) <= 0):
             raise InputError("stick path times must be finite and increasing, positions "
                              "finite")
+        rock = float(check_real("rock", self.rock))
+        rock_hz = float(check_real("rock_hz", self.rock_hz, nonnegative=True))
+        for name, value in (("times", tuple(t.tolist())),
+                            ("positions", tuple(map(tuple, p.tolist()))),
+                            ("rock", rock), ("rock_hz", rock_hz)):
+            object.__setattr__(self, name, value)
 
     def pose(self, t):
         """Stick position (3,) and rotation (3, 3) at time ``t``."""
@@ -137,6 +148,24 @@ PUPPET_PHASES = {"open": (0.3, 0.8), "behind_wall": (2.4, 3.0), "open_again": (4
                  "below_view": (5.8, 6.2), "back_in_view": (7.0, 7.4)}
 
 
+def _stick_ends(stick):
+    """``stick(0)``, the strings' upper ends at the start, checked to be finite
+    (6, 3) world points."""
+    try:
+        top = stick(0.0)
+    except VdadError:
+        raise
+    except Exception as e:
+        raise InputError(f"stick(t) failed at t = 0: {type(e).__name__}: {e}") from e
+    top = real_array("stick(t)", top)
+    if top.shape != (6, 3):
+        raise InputError(f"stick(t) must give the (6, 3) world points of the strings' upper "
+                         f"ends, got shape {top.shape} at t = 0")
+    if not np.all(np.isfinite(top)):
+        raise InputError(f"stick(t) must be finite, got {show(top.tolist())} at t = 0")
+    return top
+
+
 def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0, drag=3.0,
                camera_distance=2.0, resolution=(320, 240), seed=0):
     """The haptic-enabled dog puppet (Kim 2008 §6.1, Figure 2).
@@ -153,25 +182,24 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
     ``camera_distance`` m in front.
     ``PUPPET_PHASES`` names the default path's time windows (legs in the open,
     behind the wall, below the view). ``seed`` only names the run: the scene is
-    deterministic. Method defaults (``Scene.defaults``, calibrated at these
-    parameters, ``docs/scenes.md``): thresholds 1e-4 (adaptive), 0.1 (view-bvh)
-    and 1e-3 (view-oq); lod-distance and sleeping keep the generic ones.
+    deterministic (a whole number >= 0, like the other scenes' seeds). Method
+    defaults (``Scene.defaults``, calibrated at these parameters,
+    ``docs/scenes.md``): thresholds 1e-4 (adaptive), 0.1 (view-bvh) and 1e-3
+    (view-oq); lod-distance and sleeping keep the generic ones.
     """
+    width, height = scene_resolution(resolution)
     for name, v in (("dt", dt), ("string_stiffness", string_stiffness),
                     ("camera_distance", camera_distance)):
         check_real(name, v, positive=True)
     for name, v in (("string_damping", string_damping), ("drag", drag)):
         check_real(name, v, nonnegative=True)
+    seed = check_count("seed", seed, 0)
     stick = default_stick_path() if stick is None else stick
-    if not callable(stick):
-        raise InputError(f"stick must be a StickPath or a callable t -> (6, 3) points, got "
-                         f"{type(stick).__name__}")
+    check_callable("stick", stick, "t -> (6, 3) points (a StickPath)")
+    top = _stick_ends(stick)
     bodies, joints = toy_dog()
     model = Model(bodies, joints, name="dog_puppet")
     q0 = np.array(model.q_neutral)
-    top = np.asarray(stick(0.0), float)
-    if top.shape != (6, 3):
-        raise InputError(f"the stick must give (6, 3) string ends, got shape {top.shape}")
     _place(model, q0, "", top[:2].mean(axis=0) - (0.0, 0.0, 0.5))
     names = [b for b, _ in STRUNG]
     points = np.array([p for _, p in STRUNG], float)
@@ -183,7 +211,7 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
                       rest_length=length, string=True)
     forces = Forces(model, [strings, Drag(model, drag)])
     camera = Camera(position=(0.35, -camera_distance, 0.52), target=(0.35, 0.0, 0.45),
-                    yfov=np.pi / 6, width=resolution[0], height=resolution[1], znear=0.05,
+                    yfov=np.pi / 6, width=width, height=height, znear=0.05,
                     zfar=10 * camera_distance + 10)
     environment = wall((0.25, -0.15), (1.2, -0.15), height=0.48)
     return Scene("dog_puppet", "toy dog of 16 bodies on six virtual strings from a scripted "
@@ -192,7 +220,7 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
                  environment=environment, forces=forces,
                  params=dict(dt=dt, string_stiffness=string_stiffness,
                              string_damping=string_damping, drag=drag,
-                             camera_distance=camera_distance, resolution=tuple(resolution),
+                             camera_distance=camera_distance, resolution=(width, height),
                              seed=seed),
                  defaults={"adaptive": {"threshold": 1e-4}, "view-bvh": {"threshold": 0.1},
                            "view-oq": {"threshold": 1e-3}})
@@ -223,6 +251,7 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
     ``docs/scenes.md``): threshold 0.01 for adaptive, view-bvh and view-oq;
     lod-distance rigid beyond twice ``camera_distance`` (6 m); sleeping generic.
     """
+    pixels = scene_resolution(resolution)
     n, columns = check_count("n_dogs", n_dogs), check_count("columns", columns)
     sx, sy = check_real("spacing", spacing, (2,), positive=True)
     seed = check_count("seed", seed, 0)
@@ -232,6 +261,11 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
     for name, v in (("twist", twist), ("spring_damping", spring_damping), ("torque", torque),
                     ("torque_rate", torque_rate)):
         check_real(name, v, nonnegative=True)
+    check_real("torque_duration", torque_duration, positive=True)
+    if float(torque_rate) * n > MAX_PULSE_RATE:
+        raise InputError(f"torque_rate * n_dogs = {float(torque_rate) * n:g} pulses per second "
+                         f"is too high: at most {MAX_PULSE_RATE:g} (RandomTorques draws each "
+                         f"1 s window's pulses at once)")
     bodies, joints = [], []
     for d in range(n):
         b, j = toy_dog(f"dog{d:03d}/")
@@ -263,8 +297,8 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
     forces = Forces(model, [springs, pulses])
     rows = -(-n // columns)
     camera = Camera(position=(0.0, -camera_distance, height + 0.6),
-                    target=(0.0, 0.15 * (rows - 1) * sy, height - 0.1), width=resolution[0],
-                    height=resolution[1], znear=0.05,
+                    target=(0.0, 0.15 * (rows - 1) * sy, height - 0.1), width=pixels[0],
+                    height=pixels[1], znear=0.05,
                     zfar=10 * (camera_distance + rows * sy))
     return Scene("hanging_dogs", f"{n} toy dogs ({model.nb} bodies) hanging from springs, "
                  f"released twisted, with random torques", model, q0, np.zeros(model.nv), dt,
@@ -274,7 +308,7 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
                              spring_stiffness=spring_stiffness, spring_damping=spring_damping,
                              torque=torque, torque_rate=torque_rate,
                              torque_duration=torque_duration, seed=seed,
-                             camera_distance=camera_distance, resolution=tuple(resolution)),
+                             camera_distance=camera_distance, resolution=pixels),
                  defaults={"adaptive": {"threshold": 1e-2}, "view-bvh": {"threshold": 1e-2},
                            "view-oq": {"threshold": 1e-2},
                            "lod-distance": {"distance": 2.0 * camera_distance}})

@@ -9,7 +9,7 @@ from ..checks import check_count, check_real
 from ..errors import InputError
 from ..model import Joint, Model, Pose
 from ..spatial import quat_exp
-from .base import Scene, rod
+from .base import Scene, rod, scene_resolution
 
 # Method defaults calibrated at pendulum()'s defaults (docs/scenes.md, method
 # defaults); lod-distance and sleeping keep the generic ones (vdad.simulator.DEFAULTS)
@@ -37,6 +37,7 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
     20 links at 320 x 240; longer chains seen at more pixels need smaller
     thresholds.
     """
+    width, height = scene_resolution(resolution)
     n = check_count("n_bodies", n_bodies)
     for name, value in (("link_length", link_length), ("link_mass", link_mass), ("dt", dt)):
         check_real(name, value, positive=True)
@@ -52,7 +53,7 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
     D = 1.1 * n * L if camera_distance is None else float(
         check_real("camera_distance", camera_distance, positive=True))
     camera = Camera(position=(0.0, -D, -n * L / 2), target=(0.0, 0.0, -n * L / 2),
-                    width=resolution[0], height=resolution[1], znear=0.01 * L,
+                    width=width, height=height, znear=0.01 * L,
                     zfar=10 * (D + n * L))
     r = L / 10 if radius is None else float(radius)
 
@@ -78,6 +79,6 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
                  f"{angle} rad", model, q0, np.zeros(model.nv), dt, camera=camera,
                  params=dict(n_bodies=n, link_length=L, link_mass=m, radius=r, angle=angle,
                              axes=axes, joint=joint, damping=damping, gravity=gravity,
-                             camera_distance=D, resolution=tuple(resolution)),
+                             camera_distance=D, resolution=(width, height)),
                  defaults={m: dict(o) for m, o in DEFAULTS.items()})
 
