@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 import vdad
@@ -59,6 +61,24 @@ def random_tree(seed, n=12, kinds=JOINT_KINDS, roots=1, springs=True, composite=
     q_model = vdad.Model(bodies, joints, gravity=gravity)
     q_spring = random_configuration(q_model, rng) if springs else None
     return vdad.Model(bodies, joints, gravity=gravity, q_spring=q_spring, name=f"random{seed}")
+
+
+def with_armature(model, seed, low=0.05, high=1.0, free=True):
+    """``model`` with a seeded rotor inertia in [low, high] on every joint (every
+    stage of a composite joint; fixed joints have none, free joints only with
+    ``free``)."""
+    rng = np.random.default_rng(seed)
+    joints = []
+    for jt in model.joints:
+        if jt.kind == "composite":
+            stages = tuple(replace(s, armature=rng.uniform(low, high)) for s in jt.stages)
+            joints.append(replace(jt, stages=stages))
+        else:
+            armature = rng.uniform(low, high)
+            keep = jt.kind == "fixed" or (jt.kind == "free" and not free)
+            joints.append(jt if keep else replace(jt, armature=armature))
+    return vdad.Model(model.bodies, joints, gravity=model.gravity, q_spring=model.q_spring,
+                      name=model.name)
 
 
 def random_configuration(model, rng):

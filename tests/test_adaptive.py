@@ -11,7 +11,13 @@ import copy
 
 import numpy as np
 import pytest
-from strategies import random_chain, random_configuration, random_state, random_tree
+from strategies import (
+    random_chain,
+    random_configuration,
+    random_state,
+    random_tree,
+    with_armature,
+)
 
 import vdad
 from vdad.adaptive import AdaptiveDynamics, StepStats, default_weights
@@ -123,12 +129,14 @@ def _case(name):
         scene = pendulum(int(name[len("pendulum"):]))
         return scene.model, scene.q0, scene.qd0, scene.dt
     model = random_tree(3, n=12, roots=2, springs=True, composite=True)
+    if name == "tree with armature":
+        model = with_armature(model, 3)
     q, qd, _, _ = random_state(model, 3)
     return model, q, qd, 1e-3
 
 
 @pytest.mark.parametrize("integrator", ["semi-implicit", "rk4"])
-@pytest.mark.parametrize("case", ["pendulum20", "pendulum60", "tree"])
+@pytest.mark.parametrize("case", ["pendulum20", "pendulum60", "tree", "tree with armature"])
 def test_threshold_zero_is_full_dca(case, integrator):
     """Threshold 0 (and a budget of every joint) reproduce ``method="dca"`` over
     300 steps. Measured: bitwise on 20 bodies and the tree; 1e-14 in qd on 60

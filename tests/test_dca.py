@@ -10,6 +10,7 @@ from strategies import (
     random_tree,
     relative_error,
     tolerance,
+    with_armature,
 )
 
 import vdad
@@ -37,10 +38,12 @@ def test_rnea_inverts_the_dca(seed):
     assert relative_error(tau_back, tau) < tolerance(model, q)
 
 
-def test_mass_matrix_gives_kinetic_energy():
+@pytest.mark.parametrize("armature", [False, True])
+def test_mass_matrix_gives_kinetic_energy(armature):
     from vdad.quantities import kinetic_energy
 
     model = random_tree(3, n=9, roots=2, composite=True)
+    model = with_armature(model, 3) if armature else model
     q, qd, _, _ = random_state(model, 3)
     M = reference.crba(model, q)
     np.testing.assert_allclose(M, M.T, atol=1e-14 * np.abs(M).max())

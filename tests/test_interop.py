@@ -24,7 +24,13 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
-from strategies import random_inertia, random_rotation, random_state, random_tree
+from strategies import (
+    random_inertia,
+    random_rotation,
+    random_state,
+    random_tree,
+    with_armature,
+)
 
 import vdad
 from vdad.interop.mujoco import (
@@ -36,7 +42,7 @@ from vdad.interop.mujoco import (
     to_mujoco,
 )
 from vdad.interop.pinocchio import pinocchio_forward, to_pinocchio
-from vdad.reference import crba
+from vdad.reference import aba, crba, crba_forward_dynamics
 
 C = 100.0
 EPS = np.finfo(float).eps
@@ -95,6 +101,45 @@ def test_dca_matches_mujoco_and_pinocchio(seed):
     assert_qdd_close(model, q, qdd, qdd_mj, "DCA vs MuJoCo")
     assert_qdd_close(model, q, qdd, qdd_pin, "DCA vs Pinocchio")
     assert_qdd_close(model, q, qdd_mj, qdd_pin, "MuJoCo vs Pinocchio")
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_armature_matches_mujoco_pinocchio_and_the_reference(seed):
+    """Rotor inertia on every dof ((A1)-(A2), docs/joints.md): the DCA equals the
+    reference ABA and CRBA (M + diag(armature)) and MuJoCo's dof_armature; with
+    none on free joints, also Pinocchio's armature (whose free-flyer applies it to
+    body-frame linear velocities, where vdad and MuJoCo use world-frame ones)."""
+    plain = tree(seed, composite=False)
+    for model, engines in ((with_armature(plain, seed), ("MuJoCo",)),
+                           (with_armature(plain, seed, free=False), ("MuJoCo", "Pinocchio"))):
+        q, qd, tau, f_ext = random_state(model, seed)
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        m, d = to_mujoco(model)
+        np.testing.assert_allclose(m.dof_armature[mujoco_layout(m)[2]], model.armature,
+                                   rtol=1e-15)
+        others = {"ABA": aba(model, q, qd, tau, f_ext),
+                  "CRBA": crba_forward_dynamics(model, q, qd, tau, f_ext),
+                  "MuJoCo": mujoco_forward(m, d, q, qd, tau, f_ext)}
+        if "Pinocchio" in engines:
+            pm = to_pinocchio(model)
+            others["Pinocchio"] = pinocchio_forward(pm, pm.createData(), model, q, qd, tau,
+                                                    f_ext)
+        for name, other in others.items():
+            assert_qdd_close(model, q, qdd, other, f"DCA with armature vs {name}")
+        without = vdad.forward_dynamics(plain, q, qd, tau, f_ext)
+        assert np.abs(qdd - without).max() > 1e-3 * np.abs(without).max()   # it matters
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_armature_on_composite_joints_and_back_from_mujoco(seed):
+    model = with_armature(tree(seed, composite=True), seed)
+    q, qd, tau, f_ext = random_state(model, seed + 100)
+    m, d = to_mujoco(model)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    assert_qdd_close(model, q, qdd, mujoco_forward(m, d, q, qd, tau, f_ext), "DCA vs MuJoCo")
+    back = from_mujoco(m)
+    _, _, iv = mujoco_layout(m)
+    np.testing.assert_allclose(back.armature[iv], model.armature, rtol=1e-15)
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -280,8 +325,6 @@ def _xml(body, extra=""):
 
 
 UNSUPPORTED = {
-    "armature": (_xml('<body name="b"><joint name="arm_j" armature="0.1"/>'
-                      '<geom size="0.1"/></body>'), "arm_j"),
     "frictionloss": (_xml('<body name="b"><joint name="fl_j" frictionloss="0.2"/>'
                           '<geom size="0.1"/></body>'), "fl_j"),
     "equality": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
@@ -325,9 +368,17 @@ def test_not_strict_drops_with_warnings():
     with pytest.warns(UserWarning) as record:
         model = from_mujoco(m, strict=False)
     text = " ".join(str(w.message) for w in record)
-    for name in ("eq_lock", "tend", "mot", "armature", "frictionloss", "j2"):
+    for name in ("eq_lock", "tend", "mot", "frictionloss", "j2"):
         assert name in text
     assert model.nv == 2
+    np.testing.assert_array_equal(model.armature, [0.0, 0.1])         # armature is kept
+
+
+def test_to_pinocchio_refuses_armature_on_a_free_joint():
+    model = with_armature(random_tree(1, n=4), 1)
+    with pytest.raises(vdad.UnsupportedFeatureError, match="joint 'j0': armature on a "
+                                                           "translation stage"):
+        to_pinocchio(model)
 
 
 @pytest.mark.parametrize("change, culprit", [

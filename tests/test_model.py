@@ -73,6 +73,10 @@ def test_bodies_are_normalised_and_hashable():
     (dict(limits=(0, 1, 2)), r"joint 'jb': limits must be \(low, high\)"),
     (dict(kind="free", limits=(0, 1)), "joint 'jb': limits: a free joint has no limits"),
     (dict(kind="fixed", stiffness=5.0), "joint 'jb': a fixed joint has no dofs"),
+    (dict(kind="fixed", armature=0.1), "joint 'jb': a fixed joint has no dofs"),
+    (dict(armature=-0.1), "joint 'jb': armature must be >= 0"),
+    (dict(kind="composite", stages=vdad.joints.revolute(), armature=0.1),
+     "joint 'jb': a composite joint takes stiffness, damping and armature per stage"),
     (dict(kind=["revolute"]), r"joint 'jb': unknown kind \['revolute'\]"),
     (dict(kind="composite", stages=vdad.joints.revolute() + vdad.joints.revolute(),
           limits=(0, 1)), "joint 'jb': limits: a joint of 2 stages takes one"),
@@ -90,6 +94,7 @@ def test_invalid_joints_name_the_joint(kwargs, match):
     (lambda: vdad.joints.prismatic(stiffness=-1), "slide stage stiffness must be >= 0"),
     (lambda: vdad.joints.spherical(damping="x"), "ball stage damping must be a real number"),
     (lambda: vdad.joints.Stage("wobble"), "unknown stage kind 'wobble'"),
+    (lambda: vdad.joints.free(armature=-1), "translation stage armature must be >= 0"),
 ])
 def test_stages_check_themselves(make, match):
     with pytest.raises(ModelError, match=match):
@@ -100,6 +105,16 @@ def test_stages_check_themselves(make, match):
 def test_model_names_are_strings(name):
     with pytest.raises(ModelError, match="the model's name must be a non-empty string"):
         Model(*two_links(), name=name)
+
+
+def test_armature_per_dof():
+    bodies = [Body("a", 1.0), Body("b", 1.0), Body("c", 1.0)]
+    joints = [Joint("ja", None, "a", "free", armature=0.5),
+              Joint("jb", "a", "b", "spherical", armature=0.2),
+              Joint("jc", "b", "c", "composite",
+                    stages=vdad.joints.revolute(armature=0.1) + vdad.joints.prismatic())]
+    m = Model(bodies, joints)
+    np.testing.assert_array_equal(m.armature, [0.5] * 6 + [0.2] * 3 + [0.1, 0.0])
 
 
 def test_joint_limits_are_normalised():

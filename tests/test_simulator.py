@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from strategies import random_chain, random_configuration
+from strategies import random_chain, random_configuration, with_armature
 
 import vdad
 from vdad.integrators import integrate_configuration
@@ -10,14 +10,17 @@ from vdad.quantities import spatial_momentum, total_energy
 from vdad.scenes import pendulum
 
 
-def test_rk4_energy_of_20_link_pendulum():
-    """20 links of 1 kg and 1 m from 1 rad, RK4, h = 1e-3, 2 s: |dE|/(m g L) < 1e-6."""
+@pytest.mark.parametrize("armature", [False, True])
+def test_rk4_energy_of_20_link_pendulum(armature):
+    """20 links of 1 kg and 1 m from 1 rad, RK4, h = 1e-3, 2 s: |dE|/(m g L) < 1e-6
+    (with rotor inertia on every joint too: its energy is part of the kinetic)."""
     scene = pendulum(20, link_length=1.0, link_mass=1.0, angle=1.0)
-    sim = scene.simulator(integrator="rk4", dt=1e-3)
-    E0 = total_energy(scene.model, sim.q, sim.qd)
+    model = with_armature(scene.model, 0) if armature else scene.model
+    sim = vdad.Simulator(model, scene.q0, dt=1e-3, integrator="rk4")
+    E0 = total_energy(model, sim.q, sim.qd)
     sim.step(2000)
     assert sim.t == pytest.approx(2.0)
-    drift = abs(total_energy(scene.model, sim.q, sim.qd) - E0) / (1.0 * 9.81 * 1.0)
+    drift = abs(total_energy(model, sim.q, sim.qd) - E0) / (1.0 * 9.81 * 1.0)
     assert drift < 1e-6
     assert np.abs(sim.qd).max() > 0.5                      # it really swung
 

@@ -42,6 +42,9 @@ class Stage:
     stiffness: spring constant towards the model's ``q_spring`` (ball: on the
         rotation vector, as MuJoCo).
     damping: viscous damping on every dof of the stage.
+    armature: rotor inertia on every dof of the stage (MuJoCo's ``armature``):
+        a joint-space inertia added to the mass matrix's diagonal
+        (``docs/joints.md``, armature).
     """
 
     kind: str
@@ -50,6 +53,7 @@ class Stage:
     ref: float = 0.0
     stiffness: float = 0.0
     damping: float = 0.0
+    armature: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.kind, str) or self.kind not in STAGE_NAMES:
@@ -60,7 +64,7 @@ class Stage:
             object.__setattr__(self, name, tuple(v.tolist()))
         object.__setattr__(self, "ref", float(check_real(f"{what} ref", self.ref,
                                                          error=ModelError)))
-        for name in ("stiffness", "damping"):
+        for name in ("stiffness", "damping", "armature"):
             object.__setattr__(self, name, float(check_real(
                 f"{what} {name}", getattr(self, name), nonnegative=True, error=ModelError)))
 
@@ -85,29 +89,33 @@ def check_stage(stage: Stage, joint: str) -> Stage:
     if stage.kind in ("hinge", "slide") and norm < 1e-12:
         raise ModelError(f"joint {joint!r}: zero axis {tuple(axis)}")
     unit = tuple(axis / norm) if norm > 0 else (0.0, 0.0, 1.0)
-    return Stage(stage.kind, unit, stage.anchor, stage.ref, stage.stiffness, stage.damping)
+    return Stage(stage.kind, unit, stage.anchor, stage.ref, stage.stiffness, stage.damping,
+                 stage.armature)
 
 
-def revolute(axis=(0, 0, 1), anchor=(0, 0, 0), stiffness=0.0, damping=0.0, ref=0.0):
+def revolute(axis=(0, 0, 1), anchor=(0, 0, 0), stiffness=0.0, damping=0.0, ref=0.0,
+             armature=0.0):
     """Stages of a revolute (hinge) joint about ``axis`` through ``anchor``."""
-    return (Stage("hinge", axis, anchor, ref, stiffness, damping),)
+    return (Stage("hinge", axis, anchor, ref, stiffness, damping, armature),)
 
 
-def prismatic(axis=(0, 0, 1), stiffness=0.0, damping=0.0, ref=0.0):
+def prismatic(axis=(0, 0, 1), stiffness=0.0, damping=0.0, ref=0.0, armature=0.0):
     """Stages of a prismatic (slide) joint along ``axis``."""
-    return (Stage("slide", axis, ref=ref, stiffness=stiffness, damping=damping),)
+    return (Stage("slide", axis, ref=ref, stiffness=stiffness, damping=damping,
+                  armature=armature),)
 
 
-def spherical(anchor=(0, 0, 0), stiffness=0.0, damping=0.0):
+def spherical(anchor=(0, 0, 0), stiffness=0.0, damping=0.0, armature=0.0):
     """Stages of a spherical (ball) joint: quaternion position, body-frame rate."""
-    return (Stage("ball", anchor=anchor, stiffness=stiffness, damping=damping),)
+    return (Stage("ball", anchor=anchor, stiffness=stiffness, damping=damping,
+                  armature=armature),)
 
 
-def free(stiffness=0.0, damping=0.0):
+def free(stiffness=0.0, damping=0.0, armature=0.0):
     """Stages of a free joint: position and linear velocity in the parent frame,
     quaternion and angular velocity in the body frame (MuJoCo's layout)."""
-    return (Stage("translation", stiffness=stiffness, damping=damping),
-            Stage("ball", stiffness=stiffness, damping=damping))
+    return (Stage("translation", stiffness=stiffness, damping=damping, armature=armature),
+            Stage("ball", stiffness=stiffness, damping=damping, armature=armature))
 
 
 def fixed():

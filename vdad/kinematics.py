@@ -20,7 +20,7 @@ real columns first, ``T`` its ``6 - d`` real columns first; padding is zero.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -53,7 +53,8 @@ class JointSet:
     local parent's body frame (``None``: identity, the model's own tree).
     q_index [nq], v_index [nv]: model indices of the local ``q`` and ``qd``.
     Stage arrays ``stage_*`` [ns] as in :class:`~vdad.model.Model`, with local
-    joint, ``q`` and ``qd`` indices; ``q_spring`` [nq], ``damping`` [nv] local.
+    joint, ``q`` and ``qd`` indices; ``q_spring`` [nq], ``damping``, ``armature``
+    [nv] local.
     S, T, W, T_pad_eye [k,6,6]: constant joint subspaces (multi-stage joints are
     refreshed from ``q``); dof_index [k,6]: local ``qd`` index of each column
     (``nv``: padding). ancestors: pointer-jumping tables (``k``: none);
@@ -83,6 +84,7 @@ class JointSet:
     stage_v: np.ndarray
     q_spring: np.ndarray
     damping: np.ndarray
+    armature: np.ndarray
     stage_groups: tuple        # ((kind, stage indices), ...)
     rank_stages: tuple         # stages of rank r, for r = 0, 1, ...
     multi_ranks: tuple         # per rank: stages of multi-stage joints
@@ -108,6 +110,11 @@ class JointSet:
     @property
     def k(self) -> int:
         return len(self.joints)
+
+    @cached_property
+    def armature_ext(self) -> np.ndarray:
+        """``armature`` (nv + 1,) ending in 0, read through ``dof_index`` padding."""
+        return np.append(self.armature, 0.0)
 
 
 @lru_cache(maxsize=64)
@@ -205,7 +212,8 @@ def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
         model.placement_R[js], model.placement_p[js], sj, stage_rank, stage_kind,
         model.stage_axis[stages], model.stage_anchor[stages], model.stage_ref[stages],
         model.stage_stiffness[stages], stage_q, stage_v, model.q_spring[q_index], damping,
-        stage_groups, rank_stages, multi_ranks, tuple(multi_cols), multi_joints, multi_by_dof,
+        model.armature[v_index], stage_groups, rank_stages, multi_ranks, tuple(multi_cols),
+        multi_joints, multi_by_dof,
         s_pad_all[stages], col_stage, col_joint_col, col_stage_col,
         S_all[js], T_all[js], W_all[js], T_pad_all[js], dof_index, ancestors, root_of,
         lin_q, lin_v, ball_q, ball_v)

@@ -190,8 +190,9 @@ class Joint:
     ``kind`` is ``"revolute"``, ``"prismatic"``, ``"spherical"``, ``"free"``,
     ``"fixed"`` or ``"composite"`` (give ``stages`` then). ``placement`` is the
     joint frame in the parent body's frame; at zero joint motion the child body
-    frame coincides with it. ``axis``, ``stiffness``, ``damping`` and ``ref``
-    are passed to the stage constructors of :mod:`vdad.joints`.
+    frame coincides with it. ``axis``, ``stiffness``, ``damping`` and
+    ``armature`` (rotor inertia on each dof) are passed to the stage
+    constructors of :mod:`vdad.joints`.
     """
 
     name: str
@@ -204,6 +205,7 @@ class Joint:
     damping: float = 0.0
     stages: tuple = ()
     limits: tuple | None = None
+    armature: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -224,10 +226,14 @@ class Joint:
             raise ModelError(f"{what} placement must be a vdad.Pose (e.g. Pose((0, 0, -1))), "
                              f"got {type(self.placement).__name__}: {show(self.placement)}")
         gains = {k: float(check_real(f"{what} {k}", getattr(self, k), nonnegative=True,
-                                     error=ModelError)) for k in ("stiffness", "damping")}
+                                     error=ModelError))
+                 for k in ("stiffness", "damping", "armature")}
         if self.kind == "fixed" and any(gains.values()):
-            raise ModelError(f"{what} a fixed joint has no dofs: stiffness and damping do not "
-                             f"apply")
+            raise ModelError(f"{what} a fixed joint has no dofs: stiffness, damping and "
+                             f"armature do not apply")
+        if self.kind == "composite" and any(gains.values()):
+            raise ModelError(f"{what} a composite joint takes stiffness, damping and armature "
+                             f"per stage (vdad.joints.Stage), not per joint")
         stages = self.stages
         if not isinstance(stages, (tuple, list)):
             raise ModelError(f"{what} stages must be a tuple of vdad.joints.Stage, got "
@@ -280,11 +286,11 @@ class Joint:
         if self.kind == "composite":
             return self.stages
         make = J.JOINT_TYPES[self.kind]
-        if self.kind in ("revolute", "prismatic"):
-            return make(axis=self.axis, stiffness=self.stiffness, damping=self.damping)
         if self.kind == "fixed":
             return make()
-        return make(stiffness=self.stiffness, damping=self.damping)
+        gains = dict(stiffness=self.stiffness, damping=self.damping, armature=self.armature)
+        return make(axis=self.axis, **gains) if self.kind in ("revolute", "prismatic") else (
+            make(**gains))
 
 
 def _sequence_of(name, items, cls):
@@ -341,7 +347,8 @@ class Model:
     ns stages): ``parent`` [nb] (-1 = world), ``mass`` [nb], ``com`` [nb, 3],
     ``inertia`` [nb, 3, 3], ``placement_R`` [nj, 3, 3], ``placement_p`` [nj, 3],
     ``q_start``/``nq_joint``/``v_start``/``nv_joint`` [nj], per-stage arrays
-    ``stage_*`` [ns], ``q_neutral`` [nq], ``q_spring`` [nq].
+    ``stage_*`` [ns], ``q_neutral`` [nq], ``q_spring`` [nq], ``armature`` [nv]
+    (rotor inertia per dof, ``docs/joints.md``).
     """
 
     def __init__(self, bodies, joints, gravity=(0.0, 0.0, -9.81), q_spring=None, name="model"):
@@ -407,7 +414,7 @@ class Model:
                 raise ModelError(f"joint {jt.name!r}: a translation stage must come first")
             for rank, s in enumerate(stages):
                 stage_rows.append((j, rank, s.code, s.axis, s.anchor, s.ref, s.stiffness,
-                                   s.damping, nq, nv))
+                                   s.damping, nq, nv, s.armature))
                 nq += s.nq
                 nv += s.nv
             nqj.append(nq - q_start[-1])
@@ -421,7 +428,7 @@ class Model:
         self.v_start = _readonly(v_start, int)
         self.nq_joint = _readonly(nqj, int)
         self.nv_joint = _readonly(nvj, int)
-        cols = list(zip(*stage_rows, strict=False)) if stage_rows else [[]] * 10
+        cols = list(zip(*stage_rows, strict=False)) if stage_rows else [[]] * 11
         self.ns = len(stage_rows)
         self.stage_joint = _readonly(cols[0], int)
         self.stage_rank = _readonly(cols[1], int)
@@ -433,6 +440,7 @@ class Model:
         self.stage_damping = _readonly(cols[7])
         self.stage_q = _readonly(cols[8], int)
         self.stage_v = _readonly(cols[9], int)
+        self.stage_armature = _readonly(cols[10])
         self.n_stages_joint = _readonly(np.bincount(self.stage_joint, minlength=self.nb), int)
 
         q0 = np.zeros(nq)
@@ -447,6 +455,8 @@ class Model:
         self.children = tuple(tuple(np.flatnonzero(self.parent == i)) for i in range(self.nb))
         self.depth = _readonly(self._depths(), int)
         self.dof_joint = _readonly(np.repeat(np.arange(self.nb), nvj), int)
+        self.armature = _readonly(np.repeat(self.stage_armature,
+                                            np.asarray(J.STAGE_NV, int)[self.stage_kind]))
 
     def _depths(self):
         depth = np.zeros(self.nb, dtype=int)

@@ -22,13 +22,15 @@ def _state(model, q, qd):
 
 
 def kinetic_energy(model, q, qd):
-    """``sum_i 1/2 m |v_c|^2 + 1/2 w^T I_c w`` over bodies."""
+    """``sum_i 1/2 m |v_c|^2 + 1/2 w^T I_c w`` over bodies, plus the rotors'
+    ``1/2 armature qd^2`` (``docs/joints.md``, armature)."""
     q, qd = _state(model, q, qd)
     kin = kinematics(model, q, qd)
     w = kin.v[:, :3]
     vc = kin.v[:, 3:] + cross3(w, model.com)
     return 0.5 * float(np.sum(model.mass * np.sum(vc * vc, axis=1))
-                       + np.einsum("ki,kij,kj->", w, model.inertia, w))
+                       + np.einsum("ki,kij,kj->", w, model.inertia, w)
+                       + np.dot(model.armature, qd * qd))
 
 
 def potential_energy(model, q):

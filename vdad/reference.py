@@ -70,9 +70,9 @@ def rnea(model, q, qd, qdd, f_ext=None):
         a_p = Xup[i] @ (_a0(model) if p < 0 else a[p])
         a[i] = a_p + Sj[i] @ qdd[dofs[i]] + c[i]
         f[i] = I[i] @ a[i] + crf(v[i]) @ I[i] @ v[i] - fx[i]
-    tau = np.zeros(model.nv)
+    tau = model.armature * qdd                                 # rotor inertia
     for i in range(model.nb - 1, -1, -1):
-        tau[dofs[i]] = Sj[i].T @ f[i]
+        tau[dofs[i]] += Sj[i].T @ f[i]
         p = model.parent[i]
         if p >= 0:
             f[p] += Xup[i].T @ f[i]
@@ -98,6 +98,7 @@ def crba(model, q):
             j = model.parent[j]
             M[dofs[i], dofs[j]] = F.T @ Sj[j]
             M[dofs[j], dofs[i]] = M[dofs[i], dofs[j]].T
+    M[np.diag_indices(model.nv)] += model.armature
     return M
 
 
@@ -124,7 +125,7 @@ def aba(model, q, qd, tau=None, f_ext=None):
     U, Dinv, u = [None] * model.nb, [None] * model.nb, [None] * model.nb
     for i in range(model.nb - 1, -1, -1):
         U[i] = IA[i] @ Sj[i]
-        Dinv[i] = np.linalg.inv(Sj[i].T @ U[i])
+        Dinv[i] = np.linalg.inv(Sj[i].T @ U[i] + np.diag(model.armature[dofs[i]]))
         u[i] = tau[dofs[i]] - Sj[i].T @ pA[i]
         p = model.parent[i]
         if p >= 0:

@@ -168,12 +168,11 @@ def _joint_stages(m, b, body, taken, strict, spring_on, damper_on):
         kind = int(m.jnt_type[j])
         dof, qadr = m.jnt_dofadr[j], m.jnt_qposadr[j]
         ndof = {free_type: 6, ball_type: 3}.get(kind, 1)
-        for field, what in (("dof_armature", "armature"), ("dof_frictionloss",
-                                                            "frictionloss")):
-            val = getattr(m, field)[dof:dof + ndof]
-            if np.any(val != 0):
-                _unsupported(strict, f"joint {jname!r} of body {body!r}: nonzero {what} "
-                                     f"{val.tolist()} is not supported")
+        val = m.dof_frictionloss[dof:dof + ndof]
+        if np.any(val != 0):
+            _unsupported(strict, f"joint {jname!r} of body {body!r}: nonzero frictionloss "
+                                 f"{val.tolist()} is not supported")
+        arm = _dof_value(m.dof_armature, dof, ndof, "armature", jname, body)
         if np.any(m.jnt_stiffnesspoly[j] != 0) or np.any(m.dof_dampingpoly[dof:dof + ndof] != 0):
             raise UnsupportedFeatureError(f"joint {jname!r} of body {body!r}: polynomial "
                                           f"stiffness or damping is not supported")
@@ -195,15 +194,15 @@ def _joint_stages(m, b, body, taken, strict, spring_on, damper_on):
                 raise UnsupportedFeatureError(f"free joint {jname!r} of body {body!r} shares "
                                               f"its body with other joints")
             free = True
-            stages += [Stage("translation", stiffness=k, damping=d), Stage("ball", stiffness=k,
-                                                                            damping=d)]
+            stages += [Stage("translation", stiffness=k, damping=d, armature=arm),
+                       Stage("ball", stiffness=k, damping=d, armature=arm)]
             limits.append(None)
         elif kind == ball_type:
-            stages.append(Stage("ball", anchor=anchor, stiffness=k, damping=d))
+            stages.append(Stage("ball", anchor=anchor, stiffness=k, damping=d, armature=arm))
             limits.append(lim)
         else:
             name = "hinge" if kind == hinge_type else "slide"
-            stages.append(Stage(name, axis, anchor, float(m.qpos0[qadr]), k, d))
+            stages.append(Stage(name, axis, anchor, float(m.qpos0[qadr]), k, d, arm))
             limits.append(lim)
     if not names:
         return "fixed", (), None, _unique(f"{body}_fixed", taken), False
@@ -233,11 +232,14 @@ def from_mujoco(m, *, strict=True) -> Model:
     them); ranges of limited joints go to :attr:`vdad.Joint.limits` (a pair, or
     one pair or None per stage of a composite joint; stored, not enforced).
 
+    ``dof_armature`` becomes each stage's rotor inertia (:attr:`vdad.Joint.armature`).
+
     Raises :class:`vdad.UnsupportedFeatureError`, naming the culprit, on mocap
-    bodies, massless bodies, free joints below a body, nonzero armature or
-    frictionloss, equality constraints, tendons, actuators, fluid forces and
-    gravity compensation. With ``strict=False`` (a bool) tendons, actuators,
-    equality constraints, armature, frictionloss, fluid forces and gravity
+    bodies, massless bodies, free joints below a body, armature or damping that
+    differs between the dofs of one joint, nonzero frictionloss, equality
+    constraints, tendons, actuators, fluid forces and gravity compensation. With
+    ``strict=False`` (a bool) tendons, actuators, equality constraints,
+    frictionloss, fluid forces and gravity
     compensation are dropped with a warning instead.
     """
     import mujoco
@@ -289,7 +291,8 @@ def from_mujoco(m, *, strict=True) -> Model:
         else:
             s = stages[-1]
             joint = Joint(jname, parent, name, kind, axis=s.axis, placement=placement,
-                          stiffness=s.stiffness, damping=s.damping, limits=limits)
+                          stiffness=s.stiffness, damping=s.damping, limits=limits,
+                          armature=s.armature)
         joints.append(joint)
     if not bodies:
         raise ModelError("the MuJoCo model has no bodies besides the world")
@@ -351,7 +354,8 @@ def _is_world_free(model, j, stages):
     return (np.array_equal(model.placement_R[j], np.eye(3)) and not np.any(model.placement_p[j])
             and not np.any(model.stage_anchor[b])
             and model.stage_stiffness[t] == model.stage_stiffness[b]
-            and model.stage_damping[t] == model.stage_damping[b])
+            and model.stage_damping[t] == model.stage_damping[b]
+            and model.stage_armature[t] == model.stage_armature[b])
 
 
 def _add_geom(spec, body, geom, tag):
@@ -422,6 +426,7 @@ def to_mjspec(model):
             fj = body.add_freejoint(name=name)
             fj.stiffness = [model.stage_stiffness[t], 0.0, 0.0]
             fj.damping = [model.stage_damping[t], 0.0, 0.0]
+            fj.armature = model.stage_armature[t]
             fj.align = mujoco.mjtAlignFree.mjALIGNFREE_FALSE
         else:
             limits = _stage_limits(model, i)
@@ -429,7 +434,8 @@ def to_mjspec(model):
                 kind, q0 = model.stage_kind[s], model.stage_q[s]
                 k, d = model.stage_stiffness[s], model.stage_damping[s]
                 jname = name if r == 0 else f"{name}:{r}"
-                common = dict(stiffness=[k, 0.0, 0.0], damping=[d, 0.0, 0.0])
+                common = dict(stiffness=[k, 0.0, 0.0], damping=[d, 0.0, 0.0],
+                              armature=model.stage_armature[s])
                 if kind == TRANSLATION:
                     for c in range(3):
                         body.add_joint(name=f"{jname}:{'xyz'[c]}" if c else jname,

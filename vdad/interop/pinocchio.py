@@ -95,6 +95,12 @@ def to_pinocchio(model):
     import pinocchio as pin
 
     check_model(model)
+    moving = np.flatnonzero((model.stage_kind == TRANSLATION) & (model.stage_armature > 0))
+    if len(moving):
+        raise UnsupportedFeatureError(
+            f"joint {model.joint_names[model.stage_joint[moving[0]]]!r}: armature on a "
+            f"translation stage; Pinocchio's free-flyer applies armature to body-frame "
+            f"linear velocities, vdad (as MuJoCo) to world-frame ones")
     pm = pin.Model()
     pm.name = model.name
     pm.gravity = pin.Motion(np.asarray(model.gravity, dtype=float), np.zeros(3))
@@ -118,6 +124,12 @@ def to_pinocchio(model):
         frame_of_joint[jid] = pm.addJointFrame(jid, frame_of_joint[parent_jid])
         pm.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
         pm.addBodyFrame(name, jid, pin.SE3.Identity(), frame_of_joint[jid])
+    armature = np.zeros(pm.nv)          # isotropic per stage, so frame-free (free joints)
+    for i, row in enumerate(_layout(model)):
+        if row[0] != "fixed":
+            pv, iv, nv = pm.joints[row[1]].idx_v, model.v_start[i], model.nv_joint[i]
+            armature[pv:pv + nv] = model.armature[iv:iv + nv]
+    pm.armature = armature
     return pm
 
 
