@@ -173,15 +173,16 @@ def assemble(levels, js, kin, tau_ext, data, metric=None):
         Y = T @ np.linalg.inv(Tt @ Wm @ T + js.T_pad_eye.take(jid, 0)) @ Tt   # (T7)
         W = kin.W.take(jid, 0)
         dofs = js.dof_index.take(jid, 0)
-        Wtau = mv(W, tau_ext.take(dofs))
+        tau = tau_ext.take(dofs)                                            # (k, 6)
         gamma = b.take(lv.bB, 0) - b.take(lv.bA, 0) - kin.c.take(jid, 0)      # (T8)
         Ia = js.armature_ext.take(dofs)                                     # (k, 6)
         if Ia.any():                                  # (A1)-(A2), docs/joints.md
             P = W - Y @ Wm @ W
             F = np.linalg.inv(np.eye(6) + Ia[:, :, None] * (np.swapaxes(P, 1, 2) @ Wm @ W))
             Y = Y + P @ (F * Ia[:, None, :]) @ np.swapaxes(P, 1, 2)
-            beta = mv(P, mv(F, tau_ext.take(dofs))) - mv(Y, gamma)
+            beta = mv(P, mv(F, tau)) - mv(Y, gamma)
         else:
+            Wtau = mv(W, tau)
             beta = Wtau - mv(Y, mv(Wm, Wtau) + gamma)                         # (T9)
         k, P = lv.sign.shape
         G = Phi.take(lv.G, 0) * lv.sign[:, :, None, None]               # (k, P, 6, 6)

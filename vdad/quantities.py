@@ -35,8 +35,9 @@ def kinetic_energy(model, q, qd):
 
 def potential_energy(model, q):
     """Gravity ``-sum m g · c`` plus the joint springs' energy."""
-    q, qd = _state(model, q, np.zeros(check_model(model).nv))
-    kin = kinematics(model, q, qd)
+    check_model(model)
+    q = check_configuration(model, "q", q)
+    kin = kinematics(model, q, np.zeros(model.nv))
     c = kin.p + mv(kin.R, model.com)
     energy = -float(np.sum(model.mass * (c @ model.gravity)))
     for k, _, d in spring_displacements(model, q):

@@ -20,7 +20,7 @@ from . import dca
 from .adaptive import AdaptiveDynamics, rotational_dofs
 from .assembly import check_tree
 from .baselines import DistanceLOD, Sleeping, articulated_bodies, root_last_tree
-from .camera import check_path
+from .camera import camera_at, check_path
 from .checks import check_callable, check_count, check_real, check_vector, check_wrenches
 from .dynamics import default_tree, forward_dynamics_unchecked
 from .environment import check_environment
@@ -56,7 +56,6 @@ def lod_distance(model, q, camera, pixels=LOD_PIXELS):
     spheres times the camera's focal length in pixels, over ``pixels``. Nearer,
     every articulated body covers more than ``pixels`` pixels and stays articulated."""
     from .bounding import body_volumes, place
-    from .camera import camera_at, check_path
 
     focal = camera_at(check_path(camera), 0.0).focal
     R, p = world_poses(model, q)
@@ -209,8 +208,6 @@ class Simulator:
         self.camera = None if camera is None else check_path(camera)
         self.environment = None if environment is None else check_environment(environment)
         if method != "dca":
-            from .adaptive import AdaptiveDynamics
-
             if method == "view-bvh":
                 from .visibility import BoundingVolumes
 

@@ -1,6 +1,5 @@
 """A scene: a model, its initial state, time step and the forces that drive it;
-and :func:`rod`, the capsule link the scenes are built from; and
-:func:`scene_resolution`, the check of the scenes' ``resolution`` argument."""
+and :func:`rod`, the capsule link the scenes are built from."""
 
 from __future__ import annotations
 
@@ -8,19 +7,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import check_resolution
 from ..checks import check_real, check_vector, show
 from ..errors import InputError
 from ..model import Body, Geom, Pose
 from ..simulator import METHODS, Simulator, with_defaults
-
-
-def scene_resolution(resolution):
-    """A scene's ``resolution`` as ``(width, height)`` ints: two positive whole
-    numbers of pixels (None is an error: a scene's camera needs a size)."""
-    if resolution is None:
-        raise InputError("resolution must be (width, height) in pixels, got None")
-    return check_resolution(resolution)
 
 
 def rod(name, mass, a, b, radius, rgba=(0.7, 0.7, 0.7, 1.0)) -> Body:

@@ -6,14 +6,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..camera import Camera, Dolly
+from ..camera import Camera, Dolly, check_resolution
 from ..checks import check_count, check_real
 from ..environment import floor
 from ..errors import InputError
 from ..forces import BodyStates, FloorContact, Forces, JointLimits, joint_inertia
 from ..model import Joint, Model, Pose
 from ..spatial import quat_exp, quat_mul
-from .base import Scene, rod, scene_resolution
+from .base import Scene, rod
 
 SKIN, SHIRT, TROUSERS = (0.9, 0.75, 0.62, 1.0), (0.25, 0.45, 0.75, 1.0), (0.3, 0.3, 0.35, 1.0)
 
@@ -119,7 +119,7 @@ def falling_character(dt=1e-3, scale=1.0, lean=0.35, drop=0.05, push=1.0, seed=0
     (view-oq); lod-distance rigid beyond twice ``camera_distance`` (6 m: after
     about 1 s of the dolly); sleeping generic.
     """
-    width, height = scene_resolution(resolution)
+    width, height = check_resolution(resolution, allow_none=False)
     for name, v in (("dt", dt), ("camera_distance", camera_distance),
                     ("floor_frequency", floor_frequency), ("scale", scale)):
         check_real(name, v, positive=True)

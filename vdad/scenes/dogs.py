@@ -7,14 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, check_resolution
 from ..checks import check_callable, check_count, check_real, real_array, show
 from ..environment import wall
 from ..errors import InputError, VdadError
 from ..forces import MAX_PULSE_RATE, BodyStates, Drag, Forces, RandomTorques, Springs
 from ..model import Joint, Model, Pose
 from ..spatial import mv, quat_exp, quat_to_rot
-from .base import Scene, rod, scene_resolution
+from .base import Scene, rod
 
 BROWN, DARK, LIGHT = (0.62, 0.42, 0.25, 1.0), (0.35, 0.22, 0.12, 1.0), (0.8, 0.65, 0.45, 1.0)
 LEGS = ("front_left", "front_right", "back_left", "back_right")
@@ -187,7 +187,7 @@ def dog_puppet(stick=None, dt=2e-3, string_stiffness=1000.0, string_damping=2.0,
     ``docs/scenes.md``): thresholds 1e-4 (adaptive), 0.1 (view-bvh) and 1e-3
     (view-oq); lod-distance and sleeping keep the generic ones.
     """
-    width, height = scene_resolution(resolution)
+    width, height = check_resolution(resolution, allow_none=False)
     for name, v in (("dt", dt), ("string_stiffness", string_stiffness),
                     ("camera_distance", camera_distance)):
         check_real(name, v, positive=True)
@@ -251,7 +251,7 @@ def hanging_dogs(n_dogs=100, columns=10, spacing=(0.7, 0.9), dt=1e-3, twist=1.0,
     ``docs/scenes.md``): threshold 0.01 for adaptive, view-bvh and view-oq;
     lod-distance rigid beyond twice ``camera_distance`` (6 m); sleeping generic.
     """
-    pixels = scene_resolution(resolution)
+    pixels = check_resolution(resolution, allow_none=False)
     n, columns = check_count("n_dogs", n_dogs), check_count("columns", columns)
     sx, sy = check_real("spacing", spacing, (2,), positive=True)
     seed = check_count("seed", seed, 0)

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, check_resolution
 from ..checks import check_count, check_real
 from ..errors import InputError
 from ..model import Joint, Model, Pose
 from ..spatial import quat_exp
-from .base import Scene, rod, scene_resolution
+from .base import Scene, rod
 
 # Method defaults calibrated at pendulum()'s defaults (docs/scenes.md, method
 # defaults); lod-distance and sleeping keep the generic ones (vdad.simulator.DEFAULTS)
@@ -37,7 +37,7 @@ def pendulum(n_bodies=20, link_length=0.1, link_mass=0.1, radius=None, angle=1.0
     20 links at 320 x 240; longer chains seen at more pixels need smaller
     thresholds.
     """
-    width, height = scene_resolution(resolution)
+    width, height = check_resolution(resolution, allow_none=False)
     n = check_count("n_bodies", n_bodies)
     for name, value in (("link_length", link_length), ("link_mass", link_mass), ("dt", dt)):
         check_real(name, value, positive=True)
