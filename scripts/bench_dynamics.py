@@ -1,18 +1,28 @@
 """Time vdad.forward_dynamics against pin.aba and mujoco.mj_forward in one run.
 
-Models: pendulum chains of 20, 300 and 1000 bodies and a forest of 100
-sixteen-body dog-shaped trees on free joints (1600 bodies). Writes
-``docs/bench_dynamics.json`` and the table between the markers of
-``docs/benchmarks.md``. Usage: ``python scripts/bench_dynamics.py [--quick]``.
+Models: pendulum chains of 20, 300, 1000 and 10000 bodies, a forest of 100
+sixteen-body dog-shaped trees on free joints (1600 bodies) and the 29-body
+character with MuJoCo-style composite joints (three hinges for each ball). Beside
+each figure: the previous numpy core's time on the same model, from
+``docs/bench_dynamics_numpy.json`` (kept from the run before the compiled core),
+and numba's compile time in a fresh cache and load time from it (subprocesses).
+Writes ``docs/bench_dynamics.json`` and the tables between the markers of
+``docs/benchmarks.md``. Usage: ``python scripts/bench_dynamics.py [--quick]
+[--no-compile]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +59,20 @@ def dog_forest(n_dogs=100):
             add(f"leg{leg}b", f"leg{leg}a", (0, 0, -0.15))
             add(f"leg{leg}c", f"leg{leg}b", (0, 0, -0.15))
     return vdad.Model(bodies, joints, name=f"{n_dogs}dogs")
+
+
+def composite_character():
+    """The 29-body character (:func:`vdad.scenes.character.humanoid`) with every
+    ball joint replaced by three hinges about x, y and z (a composite joint, as
+    MJCF import builds from MuJoCo's humanoids)."""
+    from vdad.joints import Stage
+    from vdad.scenes.character import humanoid
+
+    model, _ = humanoid()
+    joints = [replace(jt, kind="composite", damping=0.0, stages=tuple(
+        Stage("hinge", axis, damping=jt.damping) for axis in np.eye(3)))
+        if jt.kind == "spherical" else jt for jt in model.joints]
+    return vdad.Model(model.bodies, joints, gravity=model.gravity, name="character-hinges")
 
 
 def median_us(fn, budget_s):
@@ -90,7 +114,10 @@ def time_pinocchio(model, budget, copies=1):
     available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     if need > 0.5 * available:
         return None, f"pin: cannot allocate (createData needs ~{need / 1e9:.0f} GB)"
-    pm = to_pinocchio(model)
+    try:
+        pm = to_pinocchio(model)
+    except vdad.UnsupportedFeatureError as exc:
+        return None, f"pin: {str(exc).split(': ', 1)[-1][:60]}"
     pd = pm.createData()
     qp = pin.neutral(pm)
     vp = np.random.default_rng(0).normal(size=pm.nv)
@@ -102,6 +129,32 @@ def time_pinocchio(model, budget, copies=1):
 
     note = f"pin: {copies} calls on one tree" if copies > 1 else ""
     return median_us(call, budget), note
+
+
+COMPILE = """
+import time
+t0 = time.perf_counter()
+import numpy as np
+import vdad
+from vdad.scenes import pendulum
+t1 = time.perf_counter()
+m = pendulum(20).model
+vdad.forward_dynamics(m, m.q_neutral, np.zeros(m.nv))
+print(t1 - t0, time.perf_counter() - t1)
+"""
+
+
+def time_compile():
+    """Seconds of ``import vdad`` and of the first forward dynamics in a fresh
+    process: with an empty numba cache (compile), then again (load from it)."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        out = []
+        for _ in range(2):
+            done = subprocess.run([sys.executable, "-c", COMPILE], env=env, check=True,
+                                  capture_output=True, text=True)
+            out.append([float(x) for x in done.stdout.split()])
+    return dict(import_s=out[1][0], compile_s=out[0][1], load_s=out[1][1])
 
 
 def time_mujoco(model, budget):
@@ -117,37 +170,57 @@ def time_mujoco(model, budget):
     return median_us(lambda: mujoco.mj_forward(m, d), budget), ""
 
 
+def previous(label):
+    """The numpy core's µs on ``label`` from the earlier JSON, or None."""
+    path = DOCS / "bench_dynamics_numpy.json"
+    rows = json.loads(path.read_text())["rows"] if path.exists() else []
+    return next((r["vdad_us"] for r in rows if r["model"] == label), None)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="short timing budget")
+    parser.add_argument("--no-compile", action="store_true",
+                        help="skip the compile and cache-load timing (about a minute)")
     parser.add_argument("--out", default=str(DOCS / "bench_dynamics.json"))
     args = parser.parse_args(argv)
     budget = 0.5 if args.quick else 3.0
     cases = [("chain 20", pendulum(20).model, None), ("chain 300", pendulum(300).model, None),
              ("chain 1000", pendulum(1000).model, None),
-             ("100 dogs (1600 bodies)", dog_forest(), dog_forest(1))]
+             ("chain 10000", pendulum(10000).model, None),
+             ("100 dogs (1600 bodies)", dog_forest(), dog_forest(1)),
+             ("character, composite joints (29 bodies)", composite_character(), None)]
     rows = []
     for label, model, one_tree in cases:
         rng = np.random.default_rng(1)
         q = np.array(model.q_neutral)
         qd = rng.normal(size=model.nv) * 0.1
         t_vdad = time_vdad(model, q, qd, budget)
-        if one_tree is None:
-            t_pin, pin_note = time_pinocchio(model, budget)
+        if model.nb > 2000:
+            (t_pin, pin_note), (t_mj, mj_note) = (None, ""), (None, "")
         else:
-            t_pin, pin_note = time_pinocchio(one_tree, budget, copies=model.nb // one_tree.nb)
-        t_mj, mj_note = time_mujoco(model, budget)
-        row = dict(model=label, bodies=model.nb, dofs=model.nv,
-                   levels=len(default_tree(model).levels), vdad_us=t_vdad,
-                   pinocchio_us=t_pin, mujoco_us=t_mj,
+            if one_tree is None:
+                t_pin, pin_note = time_pinocchio(model, budget)
+            else:
+                t_pin, pin_note = time_pinocchio(one_tree, budget,
+                                                 copies=model.nb // one_tree.nb)
+            t_mj, mj_note = time_mujoco(model, budget)
+        t_numpy = previous(label)
+        row = dict(model=label, bodies=model.nb, dofs=model.nv, vdad_us=t_vdad,
+                   us_per_body=t_vdad / model.nb, pinocchio_us=t_pin, mujoco_us=t_mj,
                    vdad_over_pinocchio=None if t_pin is None else t_vdad / t_pin,
                    vdad_over_mujoco=None if t_mj is None else t_vdad / t_mj,
+                   numpy_core_us=t_numpy,
+                   speedup_over_numpy=None if t_numpy is None else t_numpy / t_vdad,
                    notes="; ".join(x for x in (pin_note, mj_note) if x))
         rows.append(row)
         print(json.dumps(row))
     result = dict(machine=f"{platform.processor() or platform.machine()}, "
-                  f"{__import__('os').cpu_count()} cores", python=platform.python_version(),
-                  numpy=np.__version__, quick=args.quick, rows=rows)
+                  f"{os.cpu_count()} cores", python=platform.python_version(),
+                  numpy=np.__version__, numba=__import__("numba").__version__,
+                  quick=args.quick, rows=rows,
+                  compile=None if args.no_compile else time_compile())
+    print(json.dumps(result["compile"]))
     Path(args.out).write_text(json.dumps(result, indent=1))
     write_table(rows, result)
 
@@ -159,15 +232,23 @@ def fmt(x, digits=1):
 def write_table(rows, result):
     lines = [MARK[0], "",
              f"Median µs per call; Python {result['python']}, numpy {result['numpy']}, "
-             f"{result['machine']}{' (quick run)' if result['quick'] else ''}.", "",
-             "| model | bodies | levels | vdad DCA | pin.aba | mj_forward | vdad / pin | "
-             "vdad / MuJoCo | notes |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             f"numba {result['numba']}, {result['machine']}"
+             f"{' (quick run)' if result['quick'] else ''}.", "",
+             "| model | bodies | vdad DCA | µs per body | pin.aba | mj_forward | vdad / pin | "
+             "vdad / MuJoCo | numpy core (earlier run) | speed-up | notes |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['model']} | {r['bodies']} | {r['levels']} | {fmt(r['vdad_us'])} | "
+        lines.append(f"| {r['model']} | {r['bodies']} | {fmt(r['vdad_us'])} | "
+                     f"{fmt(r['us_per_body'], 2)} | "
                      f"{fmt(r['pinocchio_us'])} | {fmt(r['mujoco_us'])} | "
                      f"{fmt(r['vdad_over_pinocchio'], 2)} | {fmt(r['vdad_over_mujoco'], 2)} | "
+                     f"{fmt(r['numpy_core_us'])} | {fmt(r['speedup_over_numpy'], 1)} | "
                      f"{r['notes']} |")
+    c = result["compile"]
+    if c is not None:
+        lines += ["", f"Start-up in a fresh process: `import vdad` {c['import_s']:.2f} s; the "
+                  f"first forward dynamics compiles the kernels in {c['compile_s']:.1f} s with "
+                  f"an empty numba cache and loads them in {c['load_s']:.2f} s from it."]
     write_section(MARK, lines[1:])
 
 

@@ -5,8 +5,12 @@ step spent on visibility (coverage ``N_M``); beside them, in the same run, one
 forward-dynamics evaluation of the scene's model by Pinocchio (ABA) and MuJoCo
 (``mj_forward``) as ratios. The headline is the 100 hanging dogs with
 ``view-oq`` (paper: 14 ms per frame in C++ on 2008 hardware, 493 of 1500
-joints active). Writes ``docs/bench_scenes.json`` and a section of
-``docs/benchmarks.md``. ``--quick`` runs fewer steps.
+joints active). Beside each figure, the same run of the previous numpy core
+(``docs/bench_scenes_numpy.json``, kept from before the compiled core) and the
+speed-up. Writes ``docs/bench_scenes.json`` and a section of
+``docs/benchmarks.md``. ``--quick`` runs fewer steps; ``--methods dca`` runs only
+some methods (the others keep the rows of the previous ``bench_scenes.json``,
+marked as from an earlier run).
 """
 
 from __future__ import annotations
@@ -74,14 +78,20 @@ def oracle_us(model):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer steps")
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
+                        help="methods to run (default: all)")
     args = parser.parse_args(argv)
+    path = DOCS / "bench_scenes.json"
+    kept = [dict(r, earlier=True) for r in
+            (json.loads(path.read_text())["rows"] if path.exists() else [])
+            if r["method"] not in args.methods]
     rows = []
     for name, build, steps, thresholds in SCENES:
         scene = build()
         n = steps[1] if args.quick else steps[0]
         print(f"{name}: {n} steps")
         oracles = oracle_us(scene.model)
-        for method in METHODS:
+        for method in args.methods:
             ms, active, vis, failure = run(scene, method, thresholds.get(method), n)
             rows.append(dict(scene=name, method=method, steps=n, dt=scene.dt, failure=failure,
                              threshold=thresholds.get(method), ms_per_step=ms,
@@ -91,8 +101,10 @@ def main(argv=None):
                   f"visibility {vis:6.2f} ms" + (f" ({failure})" if failure else ""))
     result = dict(machine=platform.processor() or platform.machine(), cpus=os.cpu_count(),
                   python=platform.python_version(), numpy=np.__version__,
-                  renderer=renderer_name(), quick=args.quick, rows=rows)
-    (DOCS / "bench_scenes.json").write_text(json.dumps(result, indent=1))
+                  renderer=renderer_name(), quick=args.quick,
+                  rows=sorted(rows + kept, key=lambda r: (
+                      [s[0] for s in SCENES].index(r["scene"]), METHODS.index(r["method"]))))
+    path.write_text(json.dumps(result, indent=1))
     write_tables(result)
 
 
@@ -106,21 +118,29 @@ def write_tables(result):
         "initial state; ms per step over the whole run, active joints averaged over "
         "its steps; visibility: ms per step spent on `N_M` (view-oq counts with the "
         "merged id buffer). Pinocchio and MuJoCo: one forward dynamics of the same "
-        "model (no scene forces), µs, and the DCA step as a multiple of it.",
+        "model (no scene forces), µs, and the DCA step as a multiple of it. numpy core: "
+        "the same run before the compiled core (`bench_scenes_numpy.json`); rows marked "
+        "* are from an earlier run than the others.",
         "",
         "| scene | method | threshold | ms/step | active joints | visibility ms | "
-        "DCA / Pinocchio ABA | DCA / MuJoCo |",
-        "|---|---|---|---|---|---|---|---|",
+        "DCA / Pinocchio ABA | DCA / MuJoCo | numpy core ms/step | speed-up |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
+    old_path = DOCS / "bench_scenes_numpy.json"
+    old = {(r["scene"], r["method"]): r["ms_per_step"]
+           for r in (json.loads(old_path.read_text())["rows"] if old_path.exists() else [])}
     dca = {r["scene"]: r["ms_per_step"] for r in result["rows"] if r["method"] == "dca"}
     for r in result["rows"]:
         ratios = ["" if r[f"{k}_us"] is None or r["method"] != "dca"
                   else fmt(1e3 * dca[r["scene"]] / r[f"{k}_us"], 0) + "x"
                   for k in ("pinocchio", "mujoco")]
-        lines.append(f"| {r['scene']} | {r['method']} | "
+        before = old.get((r["scene"], r["method"]))
+        lines.append(f"| {r['scene']} | {r['method']}{' *' if r.get('earlier') else ''} | "
                      f"{'' if r['threshold'] is None else r['threshold']} | "
                      f"{fmt(r['ms_per_step'], 2)} | {fmt(r['active_joints'])} of {r['joints']} "
-                     f"| {fmt(r['visibility_ms'], 2)} | {ratios[0]} | {ratios[1]} |"
+                     f"| {fmt(r['visibility_ms'], 2)} | {ratios[0]} | {ratios[1]} | "
+                     f"{fmt(before, 2)} | "
+                     f"{'' if before is None else fmt(before / r['ms_per_step'], 1) + 'x'} |"
                      + (f" {r['failure']}" if r["failure"] else ""))
     head = [r for r in result["rows"] if r["scene"].startswith("100") and r["method"] == "view-oq"]
     if head:

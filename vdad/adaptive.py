@@ -50,8 +50,12 @@ from .checks import (
     check_wrenches,
     real_array,
 )
-from .dca import (
-    DCAData,
+from .dynamics import default_tree, passive_forces
+from .errors import InputError
+from .hybrid import RigidGroups, group_wrench, momentum_at_com
+from .kinematics import body_poses, joint_kinematics, joint_set, kinematics, ranges
+from .levels import (
+    LevelData,
     MetricData,
     assemble,
     back_substitute,
@@ -60,10 +64,6 @@ from .dca import (
     metric_value,
     rigid_leaves,
 )
-from .dynamics import default_tree, passive_forces
-from .errors import InputError
-from .hybrid import RigidGroups, group_wrench, momentum_at_com
-from .kinematics import body_poses, joint_kinematics, joint_set, kinematics, ranges
 from .spatial import cross3, mv
 
 POLICIES = ("momentum", "zero")
@@ -284,7 +284,7 @@ class AdaptiveDynamics:
         self.front_mobile = mobile
         self.front_lp = _leaf_plan(tree, mobile, jmap)
         self.levels = _active_levels(tree, self.active, jmap, k)
-        self.data = DCAData(self.Phi, self.b, np.zeros((k + 1, 6)), np.zeros(js.nv + 1),
+        self.data = LevelData(self.Phi, self.b, np.zeros((k + 1, 6)), np.zeros(js.nv + 1),
                             [None] * len(self.levels))
         self.metric.D = _padded(js, self.wA)
         self.wV_local = self.wV[js.v_index]
@@ -361,7 +361,7 @@ class AdaptiveDynamics:
             fixed_R=fixed_R, fixed_p=fixed_p, js=js,
             kin=SimpleNamespace(T=T, W=W, c=np.zeros((len(j), 6))),
             tau_springs=passive_forces(js, q_la, np.zeros(js.nv)), levels=levels,
-            data=DCAData(self.Phi, self.b, None, None, [None] * len(levels)),
+            data=LevelData(self.Phi, self.b, None, None, [None] * len(levels)),
             D=_padded(js, self.wA), top=np.where(g.grounded[F], -1,
                                                  jmap[np.maximum(tree.top[F], 0)]),
             A=np.zeros(len(F)))

@@ -24,6 +24,7 @@ and ground leaves, slot 1 a trash slot written by padding.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -136,7 +137,12 @@ class AssemblyTree:
     ``top`` (top body of every node: the body whose parent is outside it; -1 when
     the node holds a ground leaf), ``n_ports`` (per node), ``block_base``,
     ``slot_base`` (per node: its first block and slot), ``slot_joint``,
-    ``slot_side`` (per slot: its port).
+    ``slot_side`` (per slot: its port), ``port_A``, ``port_B`` (per internal
+    node: where its joint's port is in A's and B's ports), ``slot_child``,
+    ``slot_index``, ``slot_sign`` (per slot of an internal node: the child the
+    port comes from, its index there and ``s_a`` of (T11)), :attr:`arrays`
+    (all of these for the compiled passes). Internal nodes are numbered children
+    first: ascending order is a post-order, descending a pre-order.
     """
 
     def __init__(self, model, order):
@@ -276,6 +282,22 @@ class AssemblyTree:
         for n in range(n_nodes):
             for a, (j, side) in enumerate(self.ports[n]):
                 self.slot_joint[slot_base[n] + a], self.slot_side[slot_base[n] + a] = j, side
+        # per internal node: the index of its joint's port in A's and B's ports; per
+        # slot of an internal node: the child it comes from, its index there, its sign
+        self.port_A = np.zeros(len(self.joint), int)
+        self.port_B = np.zeros(len(self.joint), int)
+        self.slot_child = np.full(nslt, -1)
+        self.slot_index = np.zeros(nslt, int)
+        self.slot_sign = np.zeros(nslt, int)
+        for i, (j, A, B) in enumerate(zip(self.joint, self.left, self.right, strict=True)):
+            if A != GROUND:
+                self.port_A[i] = self.ports[A].index((j, -1))
+            self.port_B[i] = self.ports[B].index((j, +1))
+            for a, pt in enumerate(self.ports[nb + i]):
+                child, sign = (A, -1) if A != GROUND and pt in self.ports[A] else (B, +1)
+                s = slot_base[nb + i] + a
+                self.slot_child[s], self.slot_index[s], self.slot_sign[s] = (
+                    child, self.ports[child].index(pt), sign)
 
         def port_index(node, port):
             return self.ports[node].index(port)
@@ -362,6 +384,17 @@ class AssemblyTree:
             levels.append(Level(ids, self.joint[ids], WA, WB, bA, bB, **arr, node=node,
                                 node_A=node_A, node_B=self.right[ids], node_up=node_up))
         self.levels = tuple(levels)
+
+    @cached_property
+    def arrays(self) -> tuple:
+        """The arrays the compiled DCA passes (:mod:`vdad.dca`) read, as one tuple:
+        ``left, right, joint, port_A, port_B`` per internal node, ``n_ports,
+        block_base, slot_base`` per node, ``slot_joint, slot_side, slot_child,
+        slot_index, slot_sign`` per slot (int64)."""
+        return tuple(np.ascontiguousarray(a, np.int64) for a in (
+            self.left, self.right, self.joint, self.port_A, self.port_B, self.n_ports,
+            self.block_base, self.slot_base, self.slot_joint, self.slot_side, self.slot_child,
+            self.slot_index, self.slot_sign))
 
     def __repr__(self):
         return (f"AssemblyTree(bodies={self.model.nb}, depth={self.depth}, "

@@ -1,78 +1,97 @@
-"""Featherstone's divide-and-conquer algorithm, level by level (theory §2-6).
+"""Featherstone's divide-and-conquer algorithm, one node at a time (theory §2-6).
 
-:func:`rigid_leaves` fills the blocks of rigid leaves, single bodies (T2)-(T3)
-or the rigid groups of adaptive dynamics (T19)-(T20); :func:`assemble` runs the
-bottom-up pass (T6)-(T12), with the metric coefficients (T16)-(T18) when asked,
-and :func:`back_substitute` the top-down pass (T10), (T13), restricted to the
-rows a caller selects. Each loop runs over a list of levels in Python, every node
-of a level evaluated in stacked numpy arrays; adaptive dynamics
-(:mod:`vdad.adaptive`) passes the levels restricted to its active region.
+:func:`leaf` fills the blocks of one body (T2)-(T3), :func:`assemble_node` joins
+two sub-assemblies across a joint (T6)-(T12), with the joint's armature (A1)-(A2)
+of ``docs/joints.md``, and :func:`solve_node` finds the joint's wrench and
+accelerations (T10), (T13). :func:`dca_pass` is the whole evaluation: the
+kinematics (:func:`vdad.kinematics.kinematics_pass`), the joint springs and
+dampers, every leaf, the internal nodes in post-order (children first) and again
+in pre-order. All of it is compiled (numba, ``cache=True``); the passes are plain
+loops over nodes, so a node costs the same wherever it sits in the tree.
 
 Port quantities are expressed in *port frames*: both ports of joint ``J`` use the
 frame of ``J``'s child body (at the joint, body axes), so a joint needs no
 transform between its two sides and every quantity is translation-invariant
 (theory §1).
 
+Storage (:class:`~vdad.assembly.AssemblyTree`): node ``n`` with ``P`` ports owns
+the blocks ``Phi[block_base[n] + a P + c]`` (6, 6) and the slots
+``b[slot_base[n] + a]`` (6,); a ground leaf has none (``Phi = 0``, ``b = 0``).
 Signed column blocks: for a port ``a`` of ``C`` taken from child ``X`` (``A`` or
 ``B``), ``G_a = s_a Phi^X_{a j_X}`` with ``s_a = -1`` on ``alpha`` and ``+1`` on
-``beta``. Then (T11)-(T12) read ``Phi^C = blockdiag(Phi^A, Phi^B) - G Y G^T`` and
-``b^C = b^X + G beta_C``, and (T10), (T13) read ``f_J = beta_C - Y u``,
-``r = u + gamma`` with ``u = sum_a G_a^T f_a``. The metric coefficients in the
-same notation are derived in ``docs/adaptive.md``.
+``beta``. Then (T11)-(T12) read ``Phi^C_{ac} = Phi^X_{ac} [same child] - G_a Y
+G_c^T`` and ``b^C_a = b^X_a + G_a beta_C``, and (T10), (T13) read ``f_J = beta_C
+- Y u``, ``r = u + gamma`` with ``u = sum_a G_a^T f_a``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
+from ._linalg import (
+    cholesky,
+    inlined,
+    kernel,
+    mm6,
+    mmt6,
+    mtm6,
+    mtv6_add,
+    mv6,
+    port_transform,
+    quaternion_log,
+    solve_general,
+    symmetric_part,
+    times_inverse_inertia,
+)
 from .errors import InputError
-from .kinematics import plan
-from .spatial import cross3, motion_transform, mv
+from .kinematics import Kinematics, kinematics_pass, plan
 
 
 @dataclass
 class DCAData:
-    """Work arrays of one DCA evaluation (Pinocchio's Data; shapes in brackets).
+    """Work arrays of one DCA evaluation on a tree (Pinocchio's Data; shapes in
+    brackets), allocated once by :func:`make_data` and reused.
 
+    kin: the :class:`~vdad.kinematics.Kinematics` of the state.
     Phi [n_blocks, 6, 6], b [n_slots, 6]: block stores of the tree.
-    f_J [k + 1, 6]: joint wrenches (last row: zero, read by padding).
-    qdd [nv + 1]: joint accelerations (last entry: scratch for padding).
-    levels: per level, the intermediates kept for the top-down pass
-    (``Y``, ``W_m``, ``G``, ``beta``, ``gamma``, ``W``).
+    Y, Wm [nb, 6, 6], beta, gamma [nb, 6]: per joint, the intermediates of its
+    node kept for the top-down pass. f_J [nb, 6]: joint wrenches; qdd [nv]:
+    joint accelerations; tau [nv]: the joint forces of the last evaluation
+    (springs, dampers and actuation). X, GY [max ports, 6, 6], tmp [8, 6, 6]:
+    scratch.
     """
 
+    kin: Kinematics
     Phi: np.ndarray
     b: np.ndarray
+    Y: np.ndarray
+    Wm: np.ndarray
+    beta: np.ndarray
+    gamma: np.ndarray
     f_J: np.ndarray
     qdd: np.ndarray
-    levels: list = field(default_factory=list)
+    tau: np.ndarray
+    X: np.ndarray
+    GY: np.ndarray
+    tmp: np.ndarray
 
-
-@dataclass
-class MetricData:
-    """Acceleration-metric coefficients (T16)-(T18) in stores shaped like Phi and b.
-
-    Psi [n_blocks, 6, 6], p [n_slots, 6], eta [n_nodes + 1] (last: ground, 0);
-    D [k, 6]: per joint the diagonal of ``A_J`` (weights of (T14)), zero-padded;
-    A [n_nodes + 1]: the metric of every node reached by the top-down pass.
-    """
-
-    Psi: np.ndarray
-    p: np.ndarray
-    eta: np.ndarray
-    D: np.ndarray
-    A: np.ndarray
+    @property
+    def arrays(self) -> tuple:
+        return (self.Phi, self.b, self.Y, self.Wm, self.beta, self.gamma, self.f_J, self.qdd,
+                self.tau, self.X, self.GY, self.tmp)
 
 
 def make_data(tree) -> DCAData:
     """Allocate the work arrays for ``tree``."""
     model = tree.model
-    return DCAData(np.zeros((tree.n_blocks, 6, 6)), np.zeros((tree.n_slots, 6)),
-                   np.zeros((model.nb + 1, 6)), np.zeros(model.nv + 1),
-                   [None] * len(tree.levels))
+    nb, P = model.nb, int(tree.n_ports.max())
+    z = np.zeros
+    return DCAData(Kinematics.empty(plan(model)), z((tree.n_blocks, 6, 6)), z((tree.n_slots, 6)),
+                   z((nb, 6, 6)), z((nb, 6, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(model.nv),
+                   z(model.nv), z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)))
 
 
 def check_data(tree, data):
@@ -83,198 +102,349 @@ def check_data(tree, data):
                          f"{type(data).__name__}")
     model = tree.model
     if (len(data.Phi) != tree.n_blocks or len(data.b) != tree.n_slots
-            or len(data.f_J) != model.nb + 1 or len(data.qdd) != model.nv + 1
-            or len(data.levels) != len(tree.levels)):
+            or len(data.f_J) != model.nb or len(data.qdd) != model.nv
+            or len(data.X) < tree.n_ports.max()):
         raise InputError(f"data was allocated for another assembly tree than this one (of "
                          f"model {model.name!r}); allocate it with make_data(tree)")
     return data
 
 
-def body_wrenches(model, kin, f_ext):
-    """Net known wrench on each body at its centre of mass, body axes (nb, 6).
-
-    Gravity ``m g`` plus the external wrench ``f_ext`` (nb, 6), given as
-    (torque about the centre of mass; force) in world axes (theory §1).
-    """
-    RT = np.swapaxes(kin.R, 1, 2)
-    f = np.zeros((model.nb, 6))
-    f[:, 3:] = model.mass[:, None] * (RT @ model.gravity)
-    if f_ext is not None:
-        f[:, :3] += mv(RT, f_ext[:, :3])
-        f[:, 3:] += mv(RT, f_ext[:, 3:])
-    return f
-
-
-def rigid_leaves(lp, R_rel, p_rel, v, mass, com, inertia, Iinv, f, data, fixed_R=None,
-                 fixed_p=None):
-    """Blocks of rigid leaves: (T2)-(T3) for bodies, (T19)-(T20) for rigid groups.
-
-    Per leaf (index ``lp.body``): ``mass``, ``com`` (3,) and ``inertia`` (3, 3)
-    about it in the leaf frame, ``Iinv = diag(I^-1, 1/m)`` (6, 6), velocity ``v``
-    (6,) at the frame origin and known wrench ``f`` (6,) at the centre of mass,
-    leaf axes. Ports flagged ``lp.inbound`` have a fixed frame in the leaf frame,
-    ``fixed_R``, ``fixed_p`` per port (``None``: the leaf frame itself); any other
-    port is the child frame ``(R_rel, p_rel)`` of its joint ``lp.joint``, seen from
-    the leaf frame (for rigid groups the active joints' kinematics carry their
-    pre-placement in the group, :mod:`vdad.adaptive`).
-    """
-    j = lp.joint
-    inb = lp.inbound
-    if fixed_R is None:
-        E = np.where(inb[:, None, None], np.eye(3), np.swapaxes(R_rel[j], 1, 2))
-        r = np.where(inb[:, None], 0.0, p_rel[j])
-    else:
-        moving = np.flatnonzero(~inb)
-        E = np.swapaxes(fixed_R, 1, 2).copy()
-        r = fixed_p.copy()
-        E[moving] = np.swapaxes(R_rel[j[moving]], 1, 2)
-        r[moving] = p_rel[j[moving]]
-    X = motion_transform(E, r - com[lp.body])                       # X_{h<-c} (np_, 6, 6)
-    Z = X @ Iinv[lp.body]
-    XT = np.ascontiguousarray(np.swapaxes(X, 1, 2))
-    data.Phi[lp.pair_block] = Z[lp.pair_h] @ XT[lp.pair_k]
-    w, vc = v[:, :3], v[:, 3:] + cross3(v[:, :3], com)               # at the com
-    Iw = mv(inertia, w)
-    bias = np.concatenate([cross3(w, Iw), mass[:, None] * cross3(w, vc)], axis=1)
-    a_c = mv(Iinv, f - bias)                   # (leaves, 6)
-    data.b[lp.slot] = mv(X, a_c[lp.body])
-
-
 @lru_cache(maxsize=64)
-def _cached_inverse_inertia(model):
-    Iinv = inverse_inertia(model.mass, model.inertia)
-    Iinv.setflags(write=False)
-    return Iinv
-
-
-def inverse_inertia(mass, inertia):
-    """``Ibar_c^-1 = diag(I_c^-1, 1/m)`` (k, 6, 6), as in (T2)."""
-    Iinv = np.zeros((len(mass), 6, 6))
-    Iinv[:, :3, :3] = np.linalg.inv(inertia)
-    Iinv[:, 3:, 3:] = (1.0 / mass)[:, None, None] * np.eye(3)
-    return Iinv
-
-
-def assemble(levels, js, kin, tau_ext, data, metric=None):
-    """Bottom-up pass (T6)-(T12) over ``levels``.
-
-    ``js``: the :class:`~vdad.kinematics.JointSet` whose local joint indices the
-    levels use, ``kin`` its kinematics, ``tau_ext`` (nv + 1,) its joint forces
-    ending in 0. With ``metric`` (:class:`MetricData`), also the coefficients
-    (T16)-(T18). Gathers use ``take``, three times cheaper than fancy indexing
-    on the small batches of adaptive dynamics.
-    """
-    Phi, b = data.Phi, data.b
-    for n, lv in enumerate(levels):
-        jid = lv.joint
-        Wm = Phi.take(lv.WA, 0) + Phi.take(lv.WB, 0)                    # (T6)
-        T = kin.T.take(jid, 0)
-        Tt = np.ascontiguousarray(np.swapaxes(T, 1, 2))
-        Y = T @ np.linalg.inv(Tt @ Wm @ T + js.T_pad_eye.take(jid, 0)) @ Tt   # (T7)
-        W = kin.W.take(jid, 0)
-        dofs = js.dof_index.take(jid, 0)
-        tau = tau_ext.take(dofs)                                            # (k, 6)
-        gamma = b.take(lv.bB, 0) - b.take(lv.bA, 0) - kin.c.take(jid, 0)      # (T8)
-        Ia = js.armature_ext.take(dofs)                                     # (k, 6)
-        if Ia.any():                                  # (A1)-(A2), docs/joints.md
-            P = W - Y @ Wm @ W
-            F = np.linalg.inv(np.eye(6) + Ia[:, :, None] * (np.swapaxes(P, 1, 2) @ Wm @ W))
-            Y = Y + P @ (F * Ia[:, None, :]) @ np.swapaxes(P, 1, 2)
-            beta = mv(P, mv(F, tau)) - mv(Y, gamma)
-        else:
-            Wtau = mv(W, tau)
-            beta = Wtau - mv(Y, mv(Wm, Wtau) + gamma)                         # (T9)
-        k, P = lv.sign.shape
-        G = Phi.take(lv.G, 0) * lv.sign[:, :, None, None]               # (k, P, 6, 6)
-        Gt = None
-        if P:
-            Gt = np.ascontiguousarray(np.swapaxes(G.reshape(k, 6 * P, 6), 1, 2))
-            M = ((G @ Y[:, None]).reshape(k, 6 * P, 6) @ Gt).reshape(k, P, 6, P, 6)
-            PhiC = Phi.take(lv.Phi0, 0) - M.transpose(0, 1, 3, 2, 4)   # (T11)
-            Phi[lv.out_Phi] = 0.5 * (PhiC + PhiC.transpose(0, 2, 1, 4, 3))
-            b[lv.out_b] = b.take(lv.b0, 0) + mv(G, beta[:, None])      # (T12)
-        data.levels[n] = (Y, Wm, G, beta, gamma, W)
-        if metric is not None:
-            _metric_coefficients(lv, metric, Y, Wm, G, Gt, beta, gamma, W)
-
-
-def _metric_coefficients(lv, metric, Y, Wm, G, Gt, beta, gamma, W):
-    """(T16)-(T18) of one level (``docs/adaptive.md`` derives this block form).
-
-    With ``H_a = s_a Psi^X_{a j_X}``, ``Psi_m = Psi^A_{jA jA} + Psi^B_{jB jB}``,
-    ``N = 1 - W_m Y``, ``D = W A_J W^T`` and ``Z = Y Psi_m Y + N^T D N``:
-    ``Psi^C = Psi_0 + G Z G^T - H Y G^T - G Y H^T``,
-    ``p^C = p_0 + 2 H beta - G (Y (2 Psi_m beta + p_m) - 2 N^T D g)``,
-    ``eta^C = g^T D g + beta^T Psi_m beta + p_m·beta + eta^A + eta^B``,
-    with ``g = W_m beta + gamma`` and ``p_m = p^B_{jB} - p^A_{jA}``.
-    """
-    Psi, p, eta = metric.Psi, metric.p, metric.eta
-    Pm = Psi.take(lv.WA, 0) + Psi.take(lv.WB, 0)
-    pm = p.take(lv.bB, 0) - p.take(lv.bA, 0)
-    N = np.eye(6) - Wm @ Y
-    D = (W * metric.D.take(lv.joint, 0)[:, None, :]) @ np.swapaxes(W, 1, 2)
-    g = mv(Wm, beta) + gamma
-    Dg = mv(D, g)
-    Pb = mv(Pm, beta)
-    eta[lv.node] = ((g * Dg + beta * (Pb + pm)).sum(axis=1)
-                    + eta.take(lv.node_A) + eta.take(lv.node_B))
-    k, P = lv.sign.shape
-    if not P:
-        return
-    Nt = np.swapaxes(N, 1, 2)
-    Z = Y @ Pm @ Y + Nt @ D @ N
-    H = Psi.take(lv.G, 0) * lv.sign[:, :, None, None]                  # (k, P, 6, 6)
-    Q = (0.5 * G.reshape(k, 6 * P, 6) @ Z - (H @ Y[:, None]).reshape(k, 6 * P, 6)) @ Gt
-    Q = Q.reshape(k, P, 6, P, 6).transpose(0, 1, 3, 2, 4)    # G Z G^T / 2 - H Y G^T
-    Psi[lv.out_Phi] = Psi.take(lv.Phi0, 0) + Q + Q.transpose(0, 2, 1, 4, 3)
-    u = mv(Y, 2 * Pb + pm) - 2 * mv(Nt, Dg)
-    p[lv.out_b] = p.take(lv.b0, 0) + mv(H, 2 * beta[:, None]) - mv(G, u[:, None])
-
-
-def back_substitute(levels, js, data, select=None):
-    """Top-down pass (T10), (T13): joint wrenches and accelerations into ``data``.
-
-    ``select(n, lv, f)``, given the forces ``f`` (k, P, 6) on the ports of the
-    level's nodes, returns the rows to evaluate (``None``: all); joints of rows
-    left out keep ``qdd = 0`` and their subtrees must be left out too.
-    """
-    dof_index = js.dof_index
-    f_J, qdd = data.f_J, data.qdd
-    for n in range(len(levels) - 1, -1, -1):
-        lv = levels[n]
-        Y, Wm, G, beta, gamma, W = data.levels[n]
-        f = f_J.take(lv.port_joint, 0) * lv.port_side[:, :, None]     # forces on C
-        rows = None if select is None else select(n, lv, f)
-        joint = lv.joint
-        if rows is not None:
-            if not len(rows):
-                continue
-            Y, Wm, G, beta, gamma, W, f = (x[rows] for x in (Y, Wm, G, beta, gamma, W, f))
-            joint = joint[rows]
-        f_J[joint], qdd[dof_index[joint]] = joint_solution(Y, Wm, G, beta, gamma, W, f)
-
-
-def joint_solution(Y, Wm, G, beta, gamma, W, f):
-    """``f_J`` (T10) and ``qdd`` (T13) (k, 6) of nodes whose port forces are ``f``."""
-    u = mv(np.swapaxes(G, -1, -2), f).sum(axis=1)
-    fJ = beta - mv(Y, u)                       # (T10)
-    r = u + gamma
-    return fJ, mv(np.swapaxes(W, 1, 2), mv(Wm, fJ) + r)
-
-
-def metric_value(metric, lv, f):
-    """``A(C) = x^T Psi x + p·x + eta`` (k,) of the level's nodes, ``x = f`` (k, P, 6)."""
-    k, P = lv.sign.shape
-    Psi = metric.Psi.take(lv.out_Phi, 0).transpose(0, 1, 3, 2, 4).reshape(k, 6 * P, 6 * P)
-    x = f.reshape(k, 6 * P)
-    return ((x * (mv(Psi, x) + metric.p.take(lv.out_b, 0).reshape(k, 6 * P))).sum(axis=1)
-            + metric.eta.take(lv.node))
-
-
-def dca_pass(model, tree, kin, f_body, tau_ext, data):
-    """One full DCA evaluation on ``tree``: leaves, bottom-up and top-down."""
+def body_arrays(model) -> tuple:
+    """The model constants the passes read, as one tuple: ``mass`` (nb,), ``com``
+    (nb, 3), ``inertia`` and its inverse ``Iinv`` (nb, 3, 3), ``gravity`` (3,); the
+    springs and dampers: ``stage_kind, stage_q, stage_v, stage_stiffness`` (ns,),
+    ``q_spring`` (nq,), ``damping``, ``armature`` (nv,)."""
     js = plan(model)
-    rigid_leaves(tree.leaves, kin.R_rel, kin.p_rel, kin.v, model.mass, model.com,
-                 model.inertia, _cached_inverse_inertia(model), f_body, data)
-    assemble(tree.levels, js, kin, tau_ext, data)
-    back_substitute(tree.levels, js, data)
+    Iinv = np.linalg.inv(model.inertia)
+    return (model.mass, model.com, model.inertia, Iinv, model.gravity, js.stage_kind,
+            js.stage_q, js.stage_v, js.stage_stiffness, js.q_spring, js.damping, js.armature)
+
+
+# --- joint forces ---------------------------------------------------------------------
+
+@kernel
+def passive_forces_pass(stage_kind, stage_q, stage_v, stage_stiffness, q_spring, damping,
+                        q, qd, tau):
+    """``tau = -D qd - K d`` (nv,): the joint dampers, and the springs of every
+    stage towards ``q_spring`` (a ball's ``d``: the rotation vector of
+    ``q_spring^-1 q``, as MuJoCo; ``docs/forces.md``)."""
+    for i in range(qd.shape[0]):
+        tau[i] = -damping[i] * qd[i]
+    rel, d = np.empty(4), np.empty(3)
+    for s in range(stage_kind.shape[0]):
+        k = stage_stiffness[s]
+        if k == 0.0:
+            continue
+        kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
+        if kind == 2:                                  # ball: log(conj(q_spring) q)
+            a0, a1, a2, a3 = q_spring[iq], -q_spring[iq + 1], -q_spring[iq + 2], -q_spring[iq + 3]
+            b0, b1, b2, b3 = q[iq], q[iq + 1], q[iq + 2], q[iq + 3]
+            rel[0] = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
+            rel[1] = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
+            rel[2] = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
+            rel[3] = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+            quaternion_log(rel, d)
+            for c in range(3):
+                tau[iv + c] -= k * d[c]
+        else:
+            for c in range(3 if kind == 3 else 1):
+                tau[iv + c] -= k * (q[iq + c] - q_spring[iq + c])
+
+
+# --- node kernels -----------------------------------------------------------------------
+
+@inlined
+def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp):
+    """Blocks of body ``i``, theory (T2)-(T3): ``Phi_hk = X_h Ibar^-1 X_k^T`` and
+    ``b_h = X_h Ibar^-1 (f - v_c ×* Ibar v_c)`` over its ports ``h, k``, with
+    ``X_h = X_{h<-c}`` from its centre of mass to port ``h`` and ``f`` the known
+    wrench at the centre of mass (gravity and ``f_ext``, body axes). The inbound
+    port is the body frame; the port of a child joint is that joint's child frame.
+    ``tmp`` (>= 3, 6, 6): scratch."""
+    (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign) = tree
+    mass, com, inertia, Iinv, gravity = bodies[0], bodies[1], bodies[2], bodies[3], bodies[4]
+    R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
+    P, s0, k0 = n_ports[i], slot_base[i], block_base[i]
+    m, c, I, Ii = mass[i], com[i], inertia[i], Iinv[i]
+    eye, zero, Z = tmp[2, :3, :3], tmp[2, 3, :3], tmp[0]
+    for r in range(3):
+        zero[r] = 0.0
+        for s in range(3):
+            eye[r, s] = 1.0 if r == s else 0.0
+    for h in range(P):
+        j = slot_joint[s0 + h]
+        if slot_side[s0 + h] > 0:
+            port_transform(eye, zero, c, X[h])
+        else:
+            port_transform(R_rel[j], p_rel[j], c, X[h])
+    for h in range(P):                                           # (T2)
+        times_inverse_inertia(X[h], Ii, m, Z)
+        for k in range(P):
+            mmt6(Z, X[k], Phi[k0 + h * P + k])
+    # (T3): f - bias at the com, body axes: (n - w × I w; m R^T g + f - m w × v_c)
+    w, Rb = v[i, :3], R[i]
+    vc0 = v[i, 3] + w[1] * c[2] - w[2] * c[1]
+    vc1 = v[i, 4] + w[2] * c[0] - w[0] * c[2]
+    vc2 = v[i, 5] + w[0] * c[1] - w[1] * c[0]
+    Iw0 = I[0, 0] * w[0] + I[0, 1] * w[1] + I[0, 2] * w[2]
+    Iw1 = I[1, 0] * w[0] + I[1, 1] * w[1] + I[1, 2] * w[2]
+    Iw2 = I[2, 0] * w[0] + I[2, 1] * w[1] + I[2, 2] * w[2]
+    f, a_c = tmp[1, 0], tmp[1, 1]
+    f[0] = -(w[1] * Iw2 - w[2] * Iw1)
+    f[1] = -(w[2] * Iw0 - w[0] * Iw2)
+    f[2] = -(w[0] * Iw1 - w[1] * Iw0)
+    f[3] = -m * (w[1] * vc2 - w[2] * vc1)
+    f[4] = -m * (w[2] * vc0 - w[0] * vc2)
+    f[5] = -m * (w[0] * vc1 - w[1] * vc0)
+    for r in range(3):
+        f[3 + r] += m * (Rb[0, r] * gravity[0] + Rb[1, r] * gravity[1] + Rb[2, r] * gravity[2])
+    if f_ext.shape[0] > 0:                                       # world axes -> body axes
+        for r in range(3):
+            f[r] += Rb[0, r] * f_ext[i, 0] + Rb[1, r] * f_ext[i, 1] + Rb[2, r] * f_ext[i, 2]
+            f[3 + r] += Rb[0, r] * f_ext[i, 3] + Rb[1, r] * f_ext[i, 4] + Rb[2, r] * f_ext[i, 5]
+    for r in range(3):
+        a_c[r] = Ii[r, 0] * f[0] + Ii[r, 1] * f[1] + Ii[r, 2] * f[2]
+        a_c[3 + r] = f[3 + r] / m
+    for h in range(P):
+        mv6(X[h], a_c, b[s0 + h])
+
+
+@inlined
+def articulated_inverse(Wm, T, nT, Y, tmp):
+    """(T7): ``Y = T (T^T W_m T)^-1 T^T`` (6, 6) for the first ``nT`` columns of
+    ``T`` (the others zero), by Cholesky ``K = L L^T`` of ``K = T^T W_m T`` with 1 on
+    the diagonal of the padding, ``Z = L^-1 T^T`` (zero rows on the padding) and
+    ``Y = Z^T Z``: literal 6x6 loops whatever ``nT``. Where rounding leaves ``K``
+    not quite positive definite (ill-conditioned trees of thousands of bodies),
+    ``Y = T K^-1 T^T`` by Gaussian elimination with pivoting instead; a singular
+    ``K`` gives NaN (the caller reports the overflow). ``tmp`` (>= 3, 6, 6):
+    scratch."""
+    WT, K, Z = tmp[0], tmp[1], tmp[2]
+    mm6(Wm, T, WT)
+    mtm6(T, WT, K)
+    for r in range(nT, 6):
+        K[r, r] += 1.0
+    if not cholesky(K, 6):
+        mtm6(T, WT, K)
+        for r in range(nT, 6):
+            K[r, r] += 1.0
+        for r in range(6):
+            for c in range(6):
+                Z[r, c] = T[c, r]
+        if not solve_general(K, Z, 6):
+            Y[:, :] = np.nan
+            return
+        mm6(T, Z, WT)
+        symmetric_part(WT, Y)
+        return
+    for col in range(6):                                        # forward substitution
+        for r in range(6):
+            acc = T[col, r]
+            for k in range(r):
+                acc -= K[r, k] * Z[k, col]
+            Z[r, col] = acc / K[r, r]
+    for r in range(6):
+        for s in range(r, 6):
+            acc = 0.0
+            for k in range(6):
+                acc += Z[k, r] * Z[k, s]
+            Y[r, s] = acc
+            Y[s, r] = acc
+
+
+@inlined
+def joint_inputs(Wm, Y, W, d, tau, Ia, gamma, beta, tmp):
+    """``beta_C`` (6,) of (T9), ``W tau - Y (W_m W tau + gamma)``; with rotor
+    inertia ``Ia`` (d,) on the joint's dofs, (A1)-(A2) of ``docs/joints.md``:
+    ``P = W - Y W_m W``, ``F = (1 + Ia P^T W_m W)^-1``, ``Y += P F Ia P^T`` and
+    ``beta_C = P F tau - Y gamma``. ``tmp`` (>= 4, 6, 6): scratch."""
+    Wtau, t = tmp[0, 0], tmp[0, 1]
+    loaded = False
+    for k in range(d):
+        loaded = loaded or Ia[k] != 0.0
+    for r in range(6):
+        acc = 0.0
+        for k in range(d):
+            acc += W[r, k] * tau[k]
+        Wtau[r] = acc
+    if not loaded:                                              # (T9)
+        mv6(Wm, Wtau, t)
+        for r in range(6):
+            t[r] += gamma[r]
+        mv6(Y, t, beta)
+        for r in range(6):
+            beta[r] = Wtau[r] - beta[r]
+        return
+    WmW, P, M = tmp[1], tmp[2], tmp[3]                          # (A1)-(A2)
+    for r in range(6):
+        for k in range(6):
+            P[r, k] = 0.0
+            M[r, k] = 0.0
+    mm6(Wm, W, WmW)
+    for r in range(6):
+        for k in range(d):
+            acc = W[r, k]
+            for s in range(6):
+                acc -= Y[r, s] * WmW[s, k]
+            P[r, k] = acc
+    N = np.zeros((6, 7))                                        # M N = (Ia P^T | tau)
+    for k in range(d):
+        for m in range(d):
+            acc = 0.0
+            for s in range(6):
+                acc += P[s, k] * WmW[s, m]
+            M[k, m] = (1.0 if k == m else 0.0) + Ia[k] * acc
+        for r in range(6):
+            N[k, r] = Ia[k] * P[r, k]
+        N[k, 6] = tau[k]
+    if not solve_general(M, N, d):
+        N[:, :] = np.nan
+    for r in range(6):
+        for s in range(6):
+            acc = 0.0
+            for k in range(d):
+                acc += P[r, k] * N[k, s]
+            Y[r, s] += acc
+    symmetric_part(Y, Y)
+    mv6(Y, gamma, t)
+    for r in range(6):
+        acc = 0.0
+        for k in range(d):
+            acc += P[r, k] * N[k, 6]
+        beta[r] = acc - t[r]
+
+
+@inlined
+def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamma, GY, tmp):
+    """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
+    ``B`` joined by joint ``j``, theory (T6)-(T12). Keeps ``Y``, ``W_m``,
+    ``beta``, ``gamma`` of ``j`` for :func:`solve_node`. ``GY`` (max ports, 6, 6),
+    ``tmp`` (>= 7, 6, 6): scratch."""
+    (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign) = tree
+    v_start, nv_joint = js[6], js[7]
+    T, W, c_J = kin[3], kin[4], kin[8]
+    C, A, B, j = nb + i, left[i], right[i], joint[i]
+    jA, jB = port_A[i], port_B[i]
+    d = nv_joint[j]
+    Wj, Yj, Wmj, bj, gj = W[j], Y[j], Wm[j], beta[j], gamma[j]
+    kB, sB = block_base[B] + jB * n_ports[B] + jB, slot_base[B] + jB
+    for r in range(6):                                          # (T6), (T8)
+        gj[r] = b[sB, r] - c_J[j, r]
+        for s in range(6):
+            Wmj[r, s] = Phi[kB, r, s]
+    if A >= 0:
+        kA, sA = block_base[A] + jA * n_ports[A] + jA, slot_base[A] + jA
+        for r in range(6):
+            gj[r] -= b[sA, r]
+            for s in range(6):
+                Wmj[r, s] += Phi[kA, r, s]
+    articulated_inverse(Wmj, T[j], 6 - d, Yj, tmp[3:])           # (T7)
+    joint_inputs(Wmj, Yj, Wj, d, tau[v_start[j]:v_start[j] + d],
+                 armature[v_start[j]:v_start[j] + d], gj, bj, tmp[3:])  # (T9), (A1)-(A2)
+    # (T11)-(T12) over C's ports a, c: G_a = s_a Phi^X_{a j_X}, kept as GY_a = G_a Y
+    P, s0, k0 = n_ports[C], slot_base[C], block_base[C]
+    M = tmp[0]
+    for a in range(P):
+        ka = column_block(s0 + a, A, jA, jB, tree)
+        sa = slot_sign[s0 + a]
+        mm6(Phi[ka], Yj, GY[a])
+        for r in range(6):
+            for s in range(6):
+                GY[a, r, s] *= sa
+        X, ia = slot_child[s0 + a], slot_index[s0 + a]
+        mv6(Phi[ka], bj, b[s0 + a])                              # (T12)
+        for r in range(6):
+            b[s0 + a, r] = b[slot_base[X] + ia, r] + sa * b[s0 + a, r]
+    for a in range(P):
+        X, ia = slot_child[s0 + a], slot_index[s0 + a]
+        for cc in range(a, P):
+            kc = column_block(s0 + cc, A, jA, jB, tree)
+            sc = slot_sign[s0 + cc]
+            mmt6(GY[a], Phi[kc], M)                              # G_a Y G_c^T
+            if slot_child[s0 + cc] == X:
+                kX = block_base[X] + ia * n_ports[X] + slot_index[s0 + cc]
+                for r in range(6):
+                    for s in range(6):
+                        M[r, s] = Phi[kX, r, s] - sc * M[r, s]
+            else:
+                for r in range(6):
+                    for s in range(6):
+                        M[r, s] = -sc * M[r, s]
+            if cc == a:                                          # (T11)
+                symmetric_part(M, Phi[k0 + a * P + a])
+            else:
+                Ca, Cc = Phi[k0 + a * P + cc], Phi[k0 + cc * P + a]
+                for r in range(6):
+                    for s in range(6):
+                        Ca[r, s] = M[r, s]
+                        Cc[s, r] = M[r, s]
+
+
+@inlined
+def column_block(s, A, jA, jB, tree):
+    """The block ``Phi^X_{a j_X}`` of the port in slot ``s`` of a node joining ``A``
+    and ``B`` (``G_a`` is it times ``slot_sign[s]``)."""
+    n_ports, block_base, slot_child, slot_index = tree[5], tree[6], tree[10], tree[11]
+    X = slot_child[s]
+    return block_base[X] + slot_index[s] * n_ports[X] + (jA if X == A else jB)
+
+
+@inlined
+def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
+    """Joint ``j`` of internal node ``C = nb + i`` given the wrenches ``f_a`` on
+    ``C``'s ports (from joints solved before it): ``u = sum_a G_a^T f_a``,
+    ``f_J = beta_C - Y u`` (T10), ``qdd = W^T (W_m f_J + u + gamma)`` (T13).
+    ``tmp`` (>= 2, 6, 6): scratch."""
+    left, joint, port_A, port_B, n_ports, slot_base = (tree[0], tree[2], tree[3], tree[4],
+                                                      tree[5], tree[7])
+    slot_joint, slot_side = tree[8], tree[9]
+    v_start, nv_joint = js[6], js[7]
+    W = kin[4]
+    C, j = nb + i, joint[i]
+    slot_sign = tree[12]
+    u, t = tmp[0, 0], tmp[0, 1]
+    for r in range(6):
+        u[r] = 0.0
+    s0 = slot_base[C]
+    for a in range(n_ports[C]):                                  # f_a = side f_J[port]
+        k = column_block(s0 + a, left[i], port_A[i], port_B[i], tree)
+        mtv6_add(Phi[k], f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a], u)
+    fJ = f_J[j]
+    mv6(Y[j], u, t)                                              # (T10)
+    for r in range(6):
+        fJ[r] = beta[j, r] - t[r]
+    mv6(Wm[j], fJ, t)                                            # (T13)
+    for r in range(6):
+        t[r] += u[r] + gamma[j, r]
+    Wj = W[j]
+    for k in range(nv_joint[j]):
+        acc = 0.0
+        for r in range(6):
+            acc += Wj[r, k] * t[r]
+        qdd[v_start[j] + k] = acc
+
+
+@kernel
+def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
+    """One DCA evaluation: kinematics, joint forces ``tau = tau_in - D qd - K d``,
+    the leaves, the bottom-up pass (internal nodes ascending: children first) and
+    the top-down pass (descending); ``qdd`` ends in ``work``."""
+    Phi, b, Y, Wm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    R_rel, p_rel, S, T, W, R, p, v, c = kin
+    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c)
+    passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
+                        q, qd, tau)
+    for r in range(tau_in.shape[0]):
+        tau[r] += tau_in[r]
+    nb = bodies[0].shape[0]
+    n_int = tree[2].shape[0]
+    for i in range(nb):
+        leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp)
+    for i in range(n_int):
+        assemble_node(i, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, Wm, beta, gamma, GY,
+                      tmp)
+    for i in range(n_int - 1, -1, -1):
+        solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp)

@@ -13,10 +13,11 @@ import numpy as np
 
 from . import dca
 from . import joints as J
+from ._linalg import as_input, compiling
 from .assembly import AssemblyTree, check_tree
 from .checks import check_vector, check_wrenches
 from .errors import InputError
-from .kinematics import JointSet, as_joint_set, kinematics, plan
+from .kinematics import JointSet, as_joint_set, plan
 from .model import check_configuration, check_model
 from .spatial import quat_log, quat_mul
 
@@ -49,9 +50,10 @@ def passive_forces(space, q, qd):
         q = check_configuration(space, "q", q)
         qd = check_vector("qd", qd, space.nv)
     js = as_joint_set(space)
-    tau = -js.damping * qd
-    for k, dofs, d in spring_displacements(js, q):
-        tau[dofs] -= k * d
+    tau = np.empty(js.nv)
+    dca.passive_forces_pass(js.stage_kind, js.stage_q, js.stage_v, js.stage_stiffness,
+                            js.q_spring, js.damping, as_input(q), as_input(qd),
+                            tau)
     return tau
 
 
@@ -98,10 +100,12 @@ def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
     """:func:`forward_dynamics` of inputs already checked (q (nq,) and qd (nv,)
     finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``tree`` of
     ``model`` and its ``data``): what a simulator calls every step."""
-    kin = kinematics(model, q, qd)
-    tau_total = passive_forces(plan(model), q, qd)
-    if tau is not None:
-        tau_total += tau
-    dca.dca_pass(model, tree, kin, dca.body_wrenches(model, kin, f_ext),
-                 np.append(tau_total, 0.0), data)
-    return data.qdd[:-1].copy()
+    with compiling(dca.dca_pass):
+        dca.dca_pass(plan(model).arrays, tree.arrays, dca.body_arrays(model), as_input(q),
+                     as_input(qd), _NO_TAU if tau is None else as_input(tau),
+                     _NO_WRENCH if f_ext is None else as_input(f_ext), data.kin.arrays,
+                     data.arrays)
+    return data.qdd.copy()
+
+
+_NO_TAU, _NO_WRENCH = np.zeros(0), np.zeros((0, 6))

@@ -21,7 +21,7 @@ import numpy as np
 
 from .checks import check_real, real_array, show
 from .errors import InputError, ModelError
-from .kinematics import body_poses, body_velocities, joint_kinematics, joint_set
+from .kinematics import Kinematics, joint_set, kinematics
 from .model import body_indices, check_model, whole_index
 from .spatial import cross3, mv, quat_log
 
@@ -39,6 +39,7 @@ class BodyStates:
     world axes."""
 
     def __init__(self, model, bodies):
+        self.model = model
         bodies = body_indices(check_model(model), bodies)
         keep = np.zeros(model.nb, bool)
         b = np.unique(bodies)
@@ -52,13 +53,12 @@ class BodyStates:
         parent = np.where(model.parent[closure] >= 0, local[model.parent[closure]], -1)
         self.js = joint_set(model, closure, parent)
         self.rows = local[bodies]
+        self._kin = Kinematics.empty(self.js)
 
     def __call__(self, q, qd):
         js = self.js
-        R_rel, p_rel, S = joint_kinematics(js, q[js.q_index])[:3]
-        R, p = body_poses(js, R_rel, p_rel)
-        v = body_velocities(js, S, R, p, qd[js.v_index])[0]
-        R, p, v = R[self.rows], p[self.rows], v[self.rows]
+        kin = kinematics(self.model, q[js.q_index], qd[js.v_index], js, self._kin)
+        R, p, v = kin.R[self.rows], kin.p[self.rows], kin.v[self.rows]
         return R, p, mv(R, v[:, :3]), mv(R, v[:, 3:])
 
 

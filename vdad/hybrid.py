@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dca import inverse_inertia
 from .kinematics import joint_kinematics, joint_set
+from .levels import inverse_inertia
 from .spatial import cross3, mv
 
 

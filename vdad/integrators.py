@@ -4,16 +4,59 @@
 slides and translations add ``qd dt``; ball stages (body-frame angular
 velocity) right-multiply their quaternion by ``exp(w dt)`` and renormalise, as
 MuJoCo's ``mj_integratePos``. The integrators take ``accel(t, q, qd) -> qdd``;
-:func:`rk4` integrates quaternions in their embedding (see there).
+:func:`rk4` integrates quaternions in their embedding (see there). The stage
+kernels are compiled; :func:`dca_steps` runs whole steps of the DCA in compiled
+code (what :meth:`vdad.Simulator.step` uses when no Python callable is involved).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ._linalg import as_input, inlined, kernel, quaternion_step
+from .dca import dca_pass
 from .errors import InputError
 from .kinematics import as_joint_set
-from .spatial import quat_exp, quat_mul
+
+
+@inlined
+def configuration_step(stage_kind, stage_q, stage_v, q, v, dt, out):
+    """``out = q ⊕ v dt`` (nq,) stage by stage; ``out`` must not be ``q``."""
+    for s in range(stage_kind.shape[0]):
+        kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
+        if kind == 2:
+            quaternion_step(q[iq:iq + 4], v[iv:iv + 3], dt, out[iq:iq + 4])
+        else:
+            for c in range(3 if kind == 3 else 1):
+                out[iq + c] = q[iq + c] + v[iv + c] * dt
+
+
+@inlined
+def configuration_rate_of(stage_kind, stage_q, stage_v, q, v, out):
+    """``out = dq/dt`` (nq,): ``v`` on linear stages, ``1/2 q ⊗ (0, w)`` on balls."""
+    for s in range(stage_kind.shape[0]):
+        kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
+        if kind == 2:
+            w, x, y, z = q[iq], q[iq + 1], q[iq + 2], q[iq + 3]
+            a, b, c = v[iv], v[iv + 1], v[iv + 2]
+            out[iq] = 0.5 * (-x * a - y * b - z * c)
+            out[iq + 1] = 0.5 * (w * a + y * c - z * b)
+            out[iq + 2] = 0.5 * (w * b - x * c + z * a)
+            out[iq + 3] = 0.5 * (w * c + x * b - y * a)
+        else:
+            for c in range(3 if kind == 3 else 1):
+                out[iq + c] = v[iv + c]
+
+
+@inlined
+def normalize_quaternions(stage_kind, stage_q, q):
+    """Every ball stage's quaternion of ``q`` divided by its norm, in place."""
+    for s in range(stage_kind.shape[0]):
+        if stage_kind[s] == 2:
+            iq = stage_q[s]
+            n = np.sqrt(q[iq] ** 2 + q[iq + 1] ** 2 + q[iq + 2] ** 2 + q[iq + 3] ** 2)
+            for c in range(4):
+                q[iq + c] /= n
 
 
 def integrate_configuration(space, q, v, dt):
@@ -23,21 +66,17 @@ def integrate_configuration(space, q, v, dt):
     ``(q, v)`` is given (the integrators below take the same first argument).
     """
     js = as_joint_set(space)
-    lin_q, lin_v, ball_q, ball_v = js.lin_q, js.lin_v, js.ball_q, js.ball_v
-    out = q.copy()
-    out[lin_q] += v[lin_v] * dt
-    if len(ball_q):
-        quat = quat_mul(q[ball_q], quat_exp(v[ball_v] * dt))
-        out[ball_q] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    out = np.empty(js.nq)
+    configuration_step(js.stage_kind, js.stage_q, js.stage_v, as_input(q),
+                       as_input(v), float(dt), out)
     return out
 
 
 def normalize_configuration(space, q):
     """``q`` with every quaternion renormalised."""
-    ball_q = as_joint_set(space).ball_q
+    js = as_joint_set(space)
     out = np.array(q, dtype=float)
-    if len(ball_q):
-        out[ball_q] /= np.linalg.norm(out[ball_q], axis=1, keepdims=True)
+    normalize_quaternions(js.stage_kind, js.stage_q, out)
     return out
 
 
@@ -51,12 +90,9 @@ def configuration_rate(space, q, v):
     """``dq/dt`` (nq,) for velocity ``v``: ``v`` on linear stages and
     ``1/2 quat ⊗ (0, w)`` on ball stages (body-frame ``w``)."""
     js = as_joint_set(space)
-    lin_q, lin_v, ball_q, ball_v = js.lin_q, js.lin_v, js.ball_q, js.ball_v
-    rate = np.zeros(js.nq)
-    rate[lin_q] = v[lin_v]
-    if len(ball_q):
-        pure = np.concatenate([np.zeros((len(ball_q), 1)), v[ball_v]], axis=1)
-        rate[ball_q] = 0.5 * quat_mul(q[ball_q], pure)
+    rate = np.empty(js.nq)
+    configuration_rate_of(js.stage_kind, js.stage_q, js.stage_v, as_input(q),
+                          as_input(v), rate)
     return rate
 
 
@@ -88,3 +124,62 @@ def get_integrator(name):
     if not isinstance(name, str) or name not in INTEGRATORS:
         raise InputError(f"unknown integrator {name!r}; choose one of {sorted(INTEGRATORS)}")
     return INTEGRATORS[name]
+
+
+# --- whole steps in compiled code ------------------------------------------------------
+
+@inlined
+def _accel(js, tree, bodies, q, qd, tau, f_ext, kin, work, out):
+    dca_pass(js, tree, bodies, q, qd, tau, f_ext, kin, work)
+    qdd = work[7]
+    for i in range(out.shape[0]):
+        out[i] = qdd[i]
+
+
+@kernel
+def dca_steps(n, dt, use_rk4, js, tree, bodies, rotational, q, qd, kin, work, q_new, qd_new):
+    """Up to ``n`` steps of the DCA with the model's own forces (gravity, joint
+    springs and dampers) by semi-implicit Euler or (``use_rk4``) RK4, as
+    :func:`semi_implicit_euler` and :func:`rk4`, updating ``q``, ``qd`` in place.
+    Stops at a step whose state is not finite (status 1) or that turns a
+    rotational dof by more than half a turn (status 2), leaving that step's state
+    in ``q_new``, ``qd_new``. Returns ``(steps done, status)``."""
+    stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
+    nq, nv = q.shape[0], qd.shape[0]
+    no_tau, no_wrench = np.zeros(0), np.zeros((0, 6))
+    kq = np.empty((4, nq))
+    kv = np.empty((4, nv))
+    qs, vs = np.empty(nq), np.empty(nv)
+    for step in range(n):
+        if not use_rk4:
+            _accel(js, tree, bodies, q, qd, no_tau, no_wrench, kin, work, kv[0])
+            for i in range(nv):
+                qd_new[i] = qd[i] + dt * kv[0, i]
+            configuration_step(stage_kind, stage_q, stage_v, q, qd_new, dt, q_new)
+        else:
+            for k in range(4):
+                h = 0.0 if k == 0 else (dt if k == 3 else 0.5 * dt)
+                for i in range(nq):
+                    qs[i] = q[i] + (h * kq[k - 1, i] if k > 0 else 0.0)
+                for i in range(nv):
+                    vs[i] = qd[i] + (h * kv[k - 1, i] if k > 0 else 0.0)
+                configuration_rate_of(stage_kind, stage_q, stage_v, qs, vs, kq[k])
+                _accel(js, tree, bodies, qs, vs, no_tau, no_wrench, kin, work, kv[k])
+            for i in range(nq):
+                q_new[i] = q[i] + dt / 6 * (kq[0, i] + 2 * kq[1, i] + 2 * kq[2, i] + kq[3, i])
+            for i in range(nv):
+                qd_new[i] = qd[i] + dt / 6 * (kv[0, i] + 2 * kv[1, i] + 2 * kv[2, i] + kv[3, i])
+            normalize_quaternions(stage_kind, stage_q, q_new)
+        for i in range(nq):
+            if not np.isfinite(q_new[i]):
+                return step, 1
+        for i in range(nv):
+            if not np.isfinite(qd_new[i]):
+                return step, 1
+            if rotational[i] and abs(qd_new[i]) * dt > np.pi:
+                return step, 2
+        for i in range(nq):
+            q[i] = q_new[i]
+        for i in range(nv):
+            qd[i] = qd_new[i]
+    return n, 0

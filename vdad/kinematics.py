@@ -1,20 +1,20 @@
-"""Joint and body kinematics, vectorised over joints and over tree depth.
+"""Joint and body kinematics, one joint at a time in topological order (theory §3).
 
-* Joint level (theory §3, (T4)-(T5), (J1) of :mod:`vdad.joints`): each joint's
-  child pose in its parent's frame, its motion subspace ``S`` in the child
-  frame, the complements ``T`` and ``W``, and the velocity-product term ``c_J``.
-* Body level: world poses and body velocities by pointer jumping over the
-  kinematic forest, ``ceil(log2(depth))`` stacked steps instead of a loop over
-  bodies (theory §5, level-synchronous evaluation).
+* Joint level ((T4)-(T5), (J1) of :mod:`vdad.joints`): each joint's child pose in
+  its parent's frame, its motion subspace ``S`` in the child frame, the
+  complements ``T`` and ``W``, and the velocity-product term ``c_J``.
+* Body level: world poses and body velocities, parent before child.
 
-Everything runs on a :class:`JointSet`: a set of joints with its own state
-layout (``q``, ``qd`` of its joints only) and its own forest. :func:`plan` is the
-set of all joints of a model; adaptive dynamics (:mod:`vdad.adaptive`) builds the
-set of active joints, whose "bodies" are the rigid groups hanging from them
-(theory §6), by :func:`joint_set` with a constant pre-placement per joint.
+Everything runs on a :class:`JointSet`: a set of joints with its own state layout
+(``q``, ``qd`` of its joints only) and its own forest. :func:`plan` is the set of
+all joints of a model; adaptive dynamics (:mod:`vdad.adaptive`) builds the set of
+active joints, whose "bodies" are the rigid groups hanging from them (theory §6),
+by :func:`joint_set` with a constant pre-placement per joint.
 
-Joint arrays are padded to 6 columns: ``S``/``W`` (k, 6, 6) hold their ``d``
-real columns first, ``T`` its ``6 - d`` real columns first; padding is zero.
+The sets are built in numpy once; :func:`kinematics_pass` is a compiled loop
+over the joints calling one kernel per step of theory §3. Joint arrays are padded
+to 6 columns: ``S``/``W`` (k, 6, 6) hold their ``d`` real columns first, ``T``
+its ``6 - d`` real columns first; padding is zero.
 """
 
 from __future__ import annotations
@@ -25,16 +25,19 @@ from functools import cached_property, lru_cache
 import numpy as np
 
 from . import joints as J
-from .spatial import (
-    axis_angle_to_rot,
-    cross3,
-    cross_motion,
-    mv,
-    pose_to_motion_transform,
-    quat_to_rot,
+from ._linalg import (
+    as_input,
+    axis_angle_rotation,
+    compiling,
+    complement,
+    cross_motion_add,
+    inlined,
+    kernel,
+    mm3,
+    motion_to_child,
+    mv3,
+    quaternion_rotation,
 )
-
-_EYE3 = np.eye(3)
 
 
 def ranges(starts, lengths):
@@ -48,33 +51,42 @@ def ranges(starts, lengths):
 class JointSet:
     """A set of ``k`` joints with a local state layout and forest (shapes in brackets).
 
-    joints [k]: model joint ids; parent [k]: local parent (-1: world).
+    joints [k]: model joint ids; parent [k]: local parent (-1: world); order [k]:
+    the joints parents first; root_of [k]: root of each joint's tree.
     pre_R [k,3,3], pre_p [k,3]: constant pose of each joint's parent frame in its
-    local parent's body frame (``None``: identity, the model's own tree).
-    q_index [nq], v_index [nv]: model indices of the local ``q`` and ``qd``.
+    local parent's body frame (``None``: identity, the model's own tree);
+    R0 [k,3,3], p0 [k,3]: the joint frame in the local parent's frame (pre-placement
+    then placement). q_index [nq], v_index [nv]: model indices of the local ``q``
+    and ``qd``; q_start, v_start, nv_joint [k]: the local layout per joint.
     Stage arrays ``stage_*`` [ns] as in :class:`~vdad.model.Model`, with local
-    joint, ``q`` and ``qd`` indices; ``q_spring`` [nq], ``damping``, ``armature``
-    [nv] local.
-    S, T, W, T_pad_eye [k,6,6]: constant joint subspaces (multi-stage joints are
-    refreshed from ``q``); dof_index [k,6]: local ``qd`` index of each column
-    (``nv``: padding). ancestors: pointer-jumping tables (``k``: none);
-    root_of [k]: root of each joint's tree. lin_q, lin_v, ball_q [., 4],
-    ball_v [., 3]: the integration layout of :mod:`vdad.integrators`.
+    joint, ``q`` and ``qd`` indices; stage0, n_stages [k]: each joint's stages;
+    s_pad [ns,6,3]: stage subspaces in post-stage frames. ``q_spring`` [nq],
+    ``damping``, ``armature`` [nv] local.
+    S, T, W, T_pad_eye [k,6,6]: constant joint subspaces of one-stage joints
+    (multi-stage ones are computed from ``q`` by the kinematics); dof_index [k,6]:
+    local ``qd`` index of each column (``nv``: padding). lin_q, lin_v, ball_q
+    [., 4], ball_v [., 3]: the integration layout of :mod:`vdad.integrators`.
     """
 
     model: object
     joints: np.ndarray
     parent: np.ndarray
+    order: np.ndarray
+    root_of: np.ndarray
     pre_R: np.ndarray | None
     pre_p: np.ndarray | None
+    R0: np.ndarray
+    p0: np.ndarray
     nq: int
     nv: int
     q_index: np.ndarray
     v_index: np.ndarray
-    placement_R: np.ndarray
-    placement_p: np.ndarray
+    q_start: np.ndarray
+    v_start: np.ndarray
+    nv_joint: np.ndarray
+    stage0: np.ndarray
+    n_stages: np.ndarray
     stage_joint: np.ndarray
-    stage_rank: np.ndarray
     stage_kind: np.ndarray
     stage_axis: np.ndarray
     stage_anchor: np.ndarray
@@ -82,26 +94,15 @@ class JointSet:
     stage_stiffness: np.ndarray
     stage_q: np.ndarray
     stage_v: np.ndarray
+    s_pad: np.ndarray
     q_spring: np.ndarray
     damping: np.ndarray
     armature: np.ndarray
-    stage_groups: tuple        # ((kind, stage indices), ...)
-    rank_stages: tuple         # stages of rank r, for r = 0, 1, ...
-    multi_ranks: tuple         # per rank: stages of multi-stage joints
-    multi_cols: tuple          # per rank: (stages, S columns (., 3), qd indices (., 3))
-    multi_joints: np.ndarray   # joints with more than one stage
-    multi_by_dof: tuple        # ((d, joints), ...) among multi_joints
-    s_pad: np.ndarray          # (ns, 6, 3) stage subspaces in post-stage frames
-    col_stage: np.ndarray      # flat (stage, column-in-joint, column-in-stage) of
-    col_joint_col: np.ndarray  # multi-stage joints, to scatter S columns
-    col_stage_col: np.ndarray
     S: np.ndarray
     T: np.ndarray
     W: np.ndarray
     T_pad_eye: np.ndarray
     dof_index: np.ndarray
-    ancestors: tuple
-    root_of: np.ndarray
     lin_q: np.ndarray
     lin_v: np.ndarray
     ball_q: np.ndarray
@@ -115,6 +116,14 @@ class JointSet:
     def armature_ext(self) -> np.ndarray:
         """``armature`` (nv + 1,) ending in 0, read through ``dof_index`` padding."""
         return np.append(self.armature, 0.0)
+
+    @cached_property
+    def arrays(self) -> tuple:
+        """The arrays :func:`kinematics_pass` reads, as one tuple (a plain tuple
+        costs numba ~0.1 µs per array to type, a namedtuple 3x that)."""
+        return (self.order, self.parent, self.R0, self.p0, self.stage0, self.n_stages,
+                self.v_start, self.nv_joint, self.stage_kind, self.stage_axis,
+                self.stage_anchor, self.stage_ref, self.stage_q, self.stage_v, self.s_pad)
 
 
 @lru_cache(maxsize=64)
@@ -143,20 +152,37 @@ def _model_tables(model):
     return first_stage, s_pad, S, T, W, T_pad_eye
 
 
-def _ancestor_tables(parent):
-    """Pointer-jumping tables of a forest: ``2^t``-th ancestors (``k``: none)."""
-    k = len(parent)
-    anc = np.where(parent < 0, k, parent)
-    tables = []
-    while np.any(anc < k):
-        tables.append(anc)
-        ext = np.append(anc, k)
-        anc = ext[anc]
-    root = np.arange(k)
-    for anc in reversed(tables):
-        up = np.append(anc, k)[root]
-        root = np.where(up < k, up, root)
-    return tuple(tables), root
+@kernel
+def forest_order(parent, order, root_of):
+    """Fill ``order`` (k,) with the joints of the forest ``parent`` (k,), parents
+    before children (by depth, stable), and ``root_of`` (k,) with each one's root."""
+    k = parent.shape[0]
+    depth = np.full(k, -1, np.int64)
+    stack = np.empty(k, np.int64)
+    for i in range(k):
+        n = 0
+        j = i
+        while j >= 0 and depth[j] < 0:
+            stack[n] = j
+            n += 1
+            j = parent[j]
+        d = -1 if j < 0 else depth[j]
+        r = -1 if j < 0 else root_of[j]
+        for s in range(n - 1, -1, -1):
+            d += 1
+            node = stack[s]
+            depth[node] = d
+            if r < 0:
+                r = node
+            root_of[node] = r
+    count = np.zeros(k + 1, np.int64)
+    for i in range(k):
+        count[depth[i] + 1] += 1
+    for d in range(k):
+        count[d + 1] += count[d]
+    for i in range(k):
+        order[count[depth[i]]] = i
+        count[depth[i]] += 1
 
 
 def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
@@ -164,6 +190,7 @@ def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
     constant pre-placements ``pre_R`` (k, 3, 3), ``pre_p`` (k, 3) (vectorised)."""
     first_stage, s_pad_all, S_all, T_all, W_all, T_pad_all = _model_tables(model)
     js = np.asarray(joints, int)
+    parent = np.asarray(parent, int)
     k = len(js)
     nq_j, nv_j, ns_j = model.nq_joint[js], model.nv_joint[js], model.n_stages_joint[js]
     q_start, v_start = np.cumsum(nq_j) - nq_j, np.cumsum(nv_j) - nv_j
@@ -175,48 +202,30 @@ def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
     stage_kind = model.stage_kind[stages]
     stage_q = model.stage_q[stages] - model.q_start[js][sj] + q_start[sj]
     stage_v = model.stage_v[stages] - model.v_start[js][sj] + v_start[sj]
-    stage_rank = model.stage_rank[stages]
     stage_nv = np.asarray(J.STAGE_NV)[stage_kind]
     damping = np.repeat(model.stage_damping[stages], stage_nv)
-    stage_groups = tuple((kind, np.flatnonzero(stage_kind == kind)) for kind in range(4)
-                         if np.any(stage_kind == kind))
-    max_rank = int(stage_rank.max()) + 1 if len(stages) else 0
-    rank_stages = tuple(np.flatnonzero(stage_rank == r) for r in range(max_rank))
-    multi = ns_j > 1
-    multi_joints = np.flatnonzero(multi)
-    multi_stage = multi[sj]
-    multi_ranks = tuple(np.flatnonzero((stage_rank == r) & multi_stage) for r in range(max_rank))
-    multi_cols = []
-    for sel in multi_ranks:
-        valid = np.arange(3) < stage_nv[sel][:, None]
-        cols = stage_v[sel][:, None] - v_start[sj[sel]][:, None] + np.arange(3)
-        dofs = stage_v[sel][:, None] + np.arange(3)
-        multi_cols.append((sel, np.where(valid, cols, 0), np.where(valid, dofs, nv)))
-    ms = np.flatnonzero(multi_stage)
-    col_stage = np.repeat(ms, stage_nv[ms])
-    col_stage_col = np.arange(len(col_stage)) - np.repeat(np.cumsum(stage_nv[ms]) - stage_nv[ms],
-                                                          stage_nv[ms])
-    col_joint_col = stage_v[col_stage] - v_start[sj[col_stage]] + col_stage_col
     dof_index = np.where(np.arange(6) < nv_j[:, None], v_start[:, None] + np.arange(6), nv)
-    multi_by_dof = tuple((int(d), multi_joints[nv_j[multi_joints] == d])
-                         for d in np.unique(nv_j[multi_joints]))
-    ancestors, root_of = _ancestor_tables(np.asarray(parent, int))
+    order, root_of = np.empty(k, np.int64), np.empty(k, np.int64)
+    forest_order(parent, order, root_of)
+    R0, p0 = model.placement_R[js], model.placement_p[js]
+    if pre_R is not None:
+        R0, p0 = pre_R @ R0, pre_p + np.einsum("kij,kj->ki", pre_R, p0)
     ball = stage_kind == J.BALL
     lin = np.flatnonzero(~ball)
     lin_q = ranges(stage_q[lin], stage_nv[lin])
     lin_v = ranges(stage_v[lin], stage_nv[lin])
     ball_q = (stage_q[ball][:, None] + np.arange(4)).reshape(-1, 4)
     ball_v = (stage_v[ball][:, None] + np.arange(3)).reshape(-1, 3)
+    i64 = np.int64
     return JointSet(
-        model, js, np.asarray(parent, int), pre_R, pre_p, nq, nv, q_index, v_index,
-        model.placement_R[js], model.placement_p[js], sj, stage_rank, stage_kind,
-        model.stage_axis[stages], model.stage_anchor[stages], model.stage_ref[stages],
-        model.stage_stiffness[stages], stage_q, stage_v, model.q_spring[q_index], damping,
-        model.armature[v_index], stage_groups, rank_stages, multi_ranks, tuple(multi_cols),
-        multi_joints, multi_by_dof,
-        s_pad_all[stages], col_stage, col_joint_col, col_stage_col,
-        S_all[js], T_all[js], W_all[js], T_pad_all[js], dof_index, ancestors, root_of,
-        lin_q, lin_v, ball_q, ball_v)
+        model, js, parent, order, root_of, pre_R, pre_p, np.ascontiguousarray(R0),
+        np.ascontiguousarray(p0), nq, nv, q_index, v_index, q_start.astype(i64),
+        v_start.astype(i64), nv_j.astype(i64), (np.cumsum(ns_j) - ns_j).astype(i64),
+        ns_j.astype(i64), sj, stage_kind.astype(i64), model.stage_axis[stages],
+        model.stage_anchor[stages], model.stage_ref[stages], model.stage_stiffness[stages],
+        stage_q.astype(i64), stage_v.astype(i64), s_pad_all[stages], model.q_spring[q_index],
+        damping, model.armature[v_index], S_all[js], T_all[js], W_all[js], T_pad_all[js],
+        dof_index, lin_q, lin_v, ball_q, ball_v)
 
 
 @lru_cache(maxsize=64)
@@ -252,129 +261,200 @@ class Kinematics:
     v: np.ndarray
     c: np.ndarray
 
+    @classmethod
+    def empty(cls, js):
+        """Work arrays for ``js``, with its constant ``S, T, W``."""
+        k = js.k
+        return cls(np.zeros((k, 3, 3)), np.zeros((k, 3)), js.S.copy(), js.T.copy(), js.W.copy(),
+                   np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros((k, 6)), np.zeros((k, 6)))
 
-def stage_transforms(js, q):
-    """Post-stage frames in pre-stage frames: R (ns, 3, 3), p (ns, 3)."""
-    ns = len(js.stage_kind)
-    R = np.broadcast_to(_EYE3, (ns, 3, 3)).copy()
-    p = np.zeros((ns, 3))
-    for kind, sel in js.stage_groups:
-        qi = js.stage_q[sel]
-        if kind == J.HINGE:
-            R[sel] = axis_angle_to_rot(js.stage_axis[sel], q[qi] - js.stage_ref[sel])
-        elif kind == J.SLIDE:
-            p[sel] = js.stage_axis[sel] * (q[qi] - js.stage_ref[sel])[:, None]
-        elif kind == J.BALL:
-            quat = q[qi[:, None] + np.arange(4)]
-            R[sel] = quat_to_rot(quat / np.linalg.norm(quat, axis=1, keepdims=True))
+    @property
+    def arrays(self) -> tuple:
+        return (self.R_rel, self.p_rel, self.S, self.T, self.W, self.R, self.p, self.v, self.c)
+
+
+# --- kernels: one joint each -------------------------------------------------------------
+
+@inlined
+def stage_motion(s, stage_kind, stage_axis, stage_anchor, stage_ref, stage_q, q, Rs, ps):
+    """Post-stage frame of stage ``s`` in its pre-stage frame, ``(Rs, ps)``
+    (:mod:`vdad.joints`): a hinge turns about its axis through its anchor, a slide
+    moves along its axis, a ball turns by its quaternion about its anchor, a
+    translation moves by ``q``."""
+    kind, iq, a = stage_kind[s], stage_q[s], stage_anchor[s]
+    if kind == 0 or kind == 2:                   # hinge, ball: p_s = a - R_s a
+        if kind == 0:
+            axis_angle_rotation(stage_axis[s], q[iq] - stage_ref[s], Rs)
         else:
-            p[sel] = q[qi[:, None] + np.arange(3)]
-        if kind in (J.HINGE, J.BALL):
-            a = js.stage_anchor[sel]
-            p[sel] = a - mv(R[sel], a)
-    return R, p
+            quaternion_rotation(q[iq:iq + 4], Rs)
+        for i in range(3):
+            ps[i] = a[i] - (Rs[i, 0] * a[0] + Rs[i, 1] * a[1] + Rs[i, 2] * a[2])
+        return
+    for i in range(3):                           # slide, translation: R_s = 1
+        for m in range(3):
+            Rs[i, m] = 1.0 if i == m else 0.0
+        ps[i] = stage_axis[s, i] * (q[iq] - stage_ref[s]) if kind == 1 else q[iq + i]
+
+
+@inlined
+def joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
+                    stage_ref, stage_q, q, R_rel, p_rel, tmp):
+    """Child frame of joint ``j`` in its parent's frame (theory §3): the joint frame
+    ``(R0, p0)`` followed by each stage's motion. ``tmp`` (>= 3, 6, 6): scratch."""
+    R, p = R_rel[j], p_rel[j]
+    for r in range(3):
+        p[r] = p0[j, r]
+        for c in range(3):
+            R[r, c] = R0[j, r, c]
+    Rs, Rn, ps = tmp[0, :3, :3], tmp[1, :3, :3], tmp[2, 0, :3]
+    for s in range(stage0[j], stage0[j] + n_stages[j]):
+        stage_motion(s, stage_kind, stage_axis, stage_anchor, stage_ref, stage_q, q, Rs, ps)
+        for r in range(3):                       # (R, p) <- (R, p) (R_s, p_s)
+            p[r] += R[r, 0] * ps[0] + R[r, 1] * ps[1] + R[r, 2] * ps[2]
+        mm3(R, Rs, Rn)
+        for r in range(3):
+            for c in range(3):
+                R[r, c] = Rn[r, c]
+
+
+@inlined
+def joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, stage_ref,
+                   stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W):
+    """``S = [X_{child<-r} s_r]`` of a multi-stage joint ``j`` ((J1),
+    ``docs/joints.md``) and its complements ``T``, ``W`` (T5). The transform from
+    each post-stage frame to the child frame is the product of the later stages,
+    accumulated from the last stage back."""
+    sufR = np.eye(3)                              # child frame in post-stage-r frame
+    sufp = np.zeros(3)
+    Rs, Rn = np.empty((3, 3)), np.empty((3, 3))
+    ps, t, col = np.empty(3), np.empty(3), np.empty(6)
+    Sj = S[j]
+    for s in range(stage0[j] + n_stages[j] - 1, stage0[j] - 1, -1):
+        for c in range(3 if stage_kind[s] >= 2 else 1):   # X_{child<-r} s_r by columns
+            motion_to_child(sufR, sufp, s_pad[s, :, c], col)
+            Sj[:, stage_v[s] - v_start[j] + c] = col
+        stage_motion(s, stage_kind, stage_axis, stage_anchor, stage_ref, stage_q, q, Rs, ps)
+        mv3(Rs, sufp, t)                          # suffix <- (R_s, p_s) suffix
+        for i in range(3):
+            sufp[i] = ps[i] + t[i]
+        mm3(Rs, sufR, Rn)
+        for r in range(3):
+            for m in range(3):
+                sufR[r, m] = Rn[r, m]
+    complement(Sj, nv_joint[j], T[j], W[j], np.empty((3, 6, 6)))
+
+
+@inlined
+def body_pose(j, parent, R_rel, p_rel, R, p):
+    """World pose of joint ``j``'s child body from its parent's: ``R = R_par R_rel``,
+    ``p = p_par + R_par p_rel``."""
+    pj = parent[j]
+    if pj < 0:
+        for r in range(3):
+            p[j, r] = p_rel[j, r]
+            for m in range(3):
+                R[j, r, m] = R_rel[j, r, m]
+        return
+    mm3(R[pj], R_rel[j], R[j])
+    mv3(R[pj], p_rel[j], p[j])
+    for i in range(3):
+        p[j, i] += p[pj, i]
+
+
+@inlined
+def body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_joint,
+                  R_rel, p_rel, S, qd, v, c, tmp):
+    """Velocity of joint ``j``'s child body, ``v = X v_parent + S qd`` (body axes, at
+    its origin), and ``c_J = crm(v) S qd + sum_{r<j} crm(S_r qd_r) S_j qd_j``
+    (T4), (J1). ``tmp`` (>= 1, 6, 6): scratch."""
+    pj = parent[j]
+    vj, cj, Sj = v[j], c[j], S[j]
+    if pj >= 0:
+        motion_to_child(R_rel[j], p_rel[j], v[pj], vj)
+    u, prefix, us = tmp[0, 0], tmp[0, 1], tmp[0, 2]
+    for i in range(6):
+        if pj < 0:
+            vj[i] = 0.0
+        u[i] = 0.0
+        prefix[i] = 0.0
+        cj[i] = 0.0
+    for s in range(stage0[j], stage0[j] + n_stages[j]):
+        for i in range(6):                        # S_r qd_r of stage s
+            us[i] = 0.0
+        first = stage_v[s] - v_start[j]
+        for col in range(first, first + (3 if stage_kind[s] >= 2 else 1)):
+            x = qd[v_start[j] + col]
+            for i in range(6):
+                us[i] += Sj[i, col] * x
+        cross_motion_add(prefix, us, cj)
+        for i in range(6):
+            prefix[i] += us[i]
+            u[i] += us[i]
+    for i in range(6):
+        vj[i] += u[i]
+    cross_motion_add(vj, u, cj)
+
+
+@kernel
+def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c):
+    """Theory §3 for every joint of the set ``js`` (:attr:`JointSet.arrays`), parents
+    first: placement, subspaces of multi-stage joints, world pose and, if
+    ``velocities``, the body velocity and ``c_J``."""
+    (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
+     stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
+    tmp = np.empty((3, 6, 6))
+    for idx in range(order.shape[0]):
+        j = order[idx]
+        joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
+                        stage_ref, stage_q, q, R_rel, p_rel, tmp)
+        if n_stages[j] > 1:
+            joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
+                           stage_ref, stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W)
+        body_pose(j, parent, R_rel, p_rel, R, p)
+        if velocities:
+            body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_joint,
+                          R_rel, p_rel, S, qd, v, c, tmp)
+
+
+# --- the public functions ------------------------------------------------------------------
+
+def kinematics(model, q, qd, js=None, out=None) -> Kinematics:
+    """All kinematic quantities of state ``(q, qd)`` (theory §3) of the joint set
+    ``js`` (default: the whole model; ``q``, ``qd`` in ``js``'s local layout), into
+    ``out`` (a :class:`Kinematics` of ``js``) if given."""
+    js = plan(model) if js is None else js
+    kin = Kinematics.empty(js) if out is None else out
+    with compiling(kinematics_pass):
+        kinematics_pass(js.arrays, as_input(q), as_input(qd), True,
+                        *kin.arrays)
+    return kin
 
 
 def joint_kinematics(js, q):
-    """Child poses in local parent frames and the padded ``S, T, W`` of every joint."""
-    Rs, ps = stage_transforms(js, q)
-    R_rel = np.array(js.placement_R)
-    p_rel = np.array(js.placement_p)
-    if js.pre_R is not None:
-        p_rel = js.pre_p + mv(js.pre_R, p_rel)
-        R_rel = js.pre_R @ R_rel
-    for sel in js.rank_stages:
-        jj = js.stage_joint[sel]
-        p_rel[jj] += mv(R_rel[jj], ps[sel])
-        R_rel[jj] = R_rel[jj] @ Rs[sel]
-    S, T, W = js.S, js.T, js.W
-    if len(js.multi_joints):
-        S, T, W = S.copy(), T.copy(), W.copy()
-        Xs = np.zeros((len(js.stage_kind), 6, 3))
-        sufR = np.broadcast_to(_EYE3, (js.k, 3, 3)).copy()
-        sufp = np.zeros((js.k, 3))
-        for sel in reversed(js.multi_ranks):
-            jj = js.stage_joint[sel]
-            Xs[sel] = pose_to_motion_transform(sufR[jj], sufp[jj]) @ js.s_pad[sel]
-            sufp[jj] = ps[sel] + mv(Rs[sel], sufp[jj])
-            sufR[jj] = Rs[sel] @ sufR[jj]
-        cs = js.col_stage
-        S[js.stage_joint[cs], :, js.col_joint_col] = Xs[cs, :, js.col_stage_col]
-        for d, jm in js.multi_by_dof:
-            Tj, Wj = J.complement(S[jm, :, :d])
-            T[jm, :, :6 - d] = Tj
-            W[jm, :, :d] = Wj
-    return R_rel, p_rel, S, T, W
+    """Child poses in local parent frames and the padded ``S, T, W`` of every joint
+    of ``js`` at its local configuration ``q``."""
+    kin = Kinematics.empty(js)
+    kinematics_pass(js.arrays, as_input(q), np.zeros(0), False, *kin.arrays)
+    return kin.R_rel, kin.p_rel, kin.S, kin.T, kin.W
+
+
+@kernel
+def _poses(order, parent, R_rel, p_rel, R, p):
+    for idx in range(order.shape[0]):
+        body_pose(order[idx], parent, R_rel, p_rel, R, p)
 
 
 def body_poses(js, R_rel, p_rel):
-    """World poses of the child bodies by pointer jumping: R (k, 3, 3), p (k, 3)."""
-    R = np.concatenate([R_rel, _EYE3[None]])
-    p = np.concatenate([p_rel, np.zeros((1, 3))])
-    for anc in js.ancestors:
-        Ra = R[anc]
-        p[:-1] = p[anc] + mv(Ra, p[:-1])
-        R[:-1] = Ra @ R[:-1]
-    return R[:-1], p[:-1]
+    """World poses of the child bodies of ``js``: R (k, 3, 3), p (k, 3)."""
+    R, p = np.empty((js.k, 3, 3)), np.empty((js.k, 3))
+    _poses(js.order, js.parent, as_input(R_rel), as_input(p_rel), R, p)
+    return R, p
 
 
 def world_poses(model, q):
     """World poses ``R`` (nb, 3, 3), ``p`` (nb, 3) of every body of ``model`` at
     configuration ``q`` (nq,)."""
     js = plan(model)
-    return body_poses(js, *joint_kinematics(js, q)[:2])
-
-
-def subtree_sum(js, x):
-    """``y_i = sum of x_j over j = i and its ancestors`` by pointer jumping; x (k, ...)."""
-    y = np.concatenate([x, np.zeros((1,) + x.shape[1:])])
-    for anc in js.ancestors:
-        y[:-1] = y[:-1] + y[anc]
-    return y[:-1]
-
-
-def body_velocities(js, S, R, p, qd):
-    """Child body velocities (k, 6) in body coordinates at the body origins.
-
-    Each joint's contribution ``S qd`` is moved to world axes at its tree's root
-    origin, summed down the tree (:func:`subtree_sum`) and moved back to the
-    body; using the root origin as reference keeps the sum translation-invariant.
-    """
-    qd_pad = np.append(qd, 0.0)[js.dof_index]                      # (k, 6)
-    u = mv(S, qd_pad)                          # child frame
-    w = mv(R, u[:, :3])
-    vp = mv(R, u[:, 3:])
-    r = p[js.root_of]
-    V = subtree_sum(js, np.concatenate([w, vp + cross3(w, r - p)], axis=1))
-    w = V[:, :3]
-    v_origin = V[:, 3:] + cross3(w, p - r)
-    RT = np.swapaxes(R, 1, 2)
-    return np.concatenate([mv(RT, w), mv(RT, v_origin)], axis=1), u
-
-
-def velocity_product(js, S, v, u, qd):
-    """``c_J`` of (T4)/(J1) for every joint (k, 6), child frame.
-
-    ``u`` (k, 6) is ``S qd`` per joint; multi-stage joints add the stage sum of (J1).
-    """
-    c = cross_motion(v, u)
-    if len(js.multi_joints):
-        qd_ext = np.append(qd, 0.0)
-        prefix = np.zeros((js.k, 6))
-        for sel, cols, dofs in js.multi_cols:
-            jj = js.stage_joint[sel]
-            u_s = np.einsum("kcj,kc->kj", S[jj[:, None], :, cols], qd_ext[dofs])
-            c[jj] += cross_motion(prefix[jj], u_s)
-            prefix[jj] += u_s
-    return c
-
-
-def kinematics(model, q, qd, js=None) -> Kinematics:
-    """All kinematic quantities of state ``(q, qd)`` (theory §3) of the joint set
-    ``js`` (default: the whole model; ``q``, ``qd`` in ``js``'s local layout)."""
-    js = plan(model) if js is None else js
-    R_rel, p_rel, S, T, W = joint_kinematics(js, q)
-    R, p = body_poses(js, R_rel, p_rel)
-    v, u = body_velocities(js, S, R, p, qd)
-    c = velocity_product(js, S, v, u, qd)
-    return Kinematics(R_rel, p_rel, S, T, W, R, p, v, c)
+    kin = Kinematics.empty(js)
+    kinematics_pass(js.arrays, as_input(q), np.zeros(0), False, *kin.arrays)
+    return kin.R, kin.p

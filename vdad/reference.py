@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import joints as J
 from .checks import check_vector, check_wrenches
 from .dynamics import check_overflow, passive_forces
-from .kinematics import joint_kinematics, plan, velocity_product
+from .kinematics import joint_kinematics, plan
 from .model import check_configuration, check_model
 from .spatial import crf, crm, inertia_at_origin, pose_to_motion_transform
 
@@ -46,8 +47,14 @@ def _setup(model, q, qd, f_ext):
         p = model.parent[i]
         u[i] = Sj[i] @ qd[dofs[i]]
         v[i] = (0 if p < 0 else Xup[i] @ v[p]) + u[i]
-    c = velocity_product(plan(model), S, np.zeros_like(v), u, qd) + np.einsum(
-        "kij,kj->ki", crm(v), u)
+    c = np.einsum("kij,kj->ki", crm(v), u)
+    for i in range(model.nb):                      # (J1): sum_{r<j} crm(S_r qd_r) S_j qd_j
+        prefix = np.zeros(6)
+        for s in np.flatnonzero(model.stage_joint == i):
+            cols = slice(model.stage_v[s], model.stage_v[s] + J.STAGE_NV[model.stage_kind[s]])
+            u_s = S[i, :, cols.start - model.v_start[i]:cols.stop - model.v_start[i]] @ qd[cols]
+            c[i] += crm(prefix) @ u_s
+            prefix += u_s
     return q, qd, Xup, I, Sj, dofs, fx, v, c
 
 

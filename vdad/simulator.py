@@ -17,6 +17,7 @@ import inspect
 import numpy as np
 
 from . import dca
+from ._linalg import compiling
 from .adaptive import AdaptiveDynamics, rotational_dofs
 from .assembly import check_tree
 from .baselines import DistanceLOD, Sleeping, articulated_bodies, root_last_tree
@@ -25,8 +26,8 @@ from .checks import check_callable, check_count, check_real, check_vector, check
 from .dynamics import default_tree, forward_dynamics_unchecked
 from .environment import check_environment
 from .errors import InputError, SimulationError
-from .integrators import get_integrator, normalize_configuration
-from .kinematics import world_poses
+from .integrators import dca_steps, get_integrator, normalize_configuration
+from .kinematics import plan, world_poses
 from .model import body_indices, check_configuration, check_model
 
 METHODS = ("dca", "adaptive", "view-bvh", "view-oq", "lod-distance", "sleeping")
@@ -245,8 +246,13 @@ class Simulator:
         return forward_dynamics_unchecked(self.model, q, qd, tau, f_ext, self.tree, self.data)
 
     def step(self, n=1):
-        """Advance ``n`` steps (a whole number >= 0); returns ``self``."""
-        for _ in range(check_count("n", n, minimum=0)):
+        """Advance ``n`` steps (a whole number >= 0); returns ``self``. With
+        ``"dca"`` and no ``controller`` or ``external``, the steps run in compiled
+        code (:func:`vdad.integrators.dca_steps`), with the same checks."""
+        n = check_count("n", n, minimum=0)
+        if self.adaptive is None and self.controller is None and self.external is None:
+            return self._compiled_steps(n)
+        for _ in range(n):
             try:
                 if self.adaptive is None:
                     q, qd = self._integrate(self.model, self.accelerations, self.t, self.q,
@@ -258,23 +264,45 @@ class Simulator:
             except InputError as exc:
                 raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): "
                                       f"{exc}") from exc
-            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
-                self._blow_up(q, qd)
-            fast = np.flatnonzero(self._rotational & (np.abs(qd) * self.dt > np.pi))
-            if len(fast):
-                joint = self.model.joint_names[self.model.dof_joint[fast[0]]]
-                raise SimulationError(
-                    f"step {self.step_count + 1} (t = {self.t + self.dt:.6g} s): joint "
-                    f"{joint!r} turns {abs(qd[fast[0]]) * self.dt:.3g} rad in one step (more "
-                    f"than half a turn): the simulation is diverging; reduce the time step"
-                    + (" or the adaptive threshold (dropped accelerations feed energy in)"
-                       if self.adaptive is not None else "")
-                    + ("; or the forces of controller / external are too large"
-                       if self.controller is not None or self.external is not None else ""))
+            self._check_step(q, qd)
             self.q, self.qd = q, qd
-            self.step_count += 1
-            self.t = self.step_count * self.dt
+            self._advance(1)
         return self
+
+    def _compiled_steps(self, n):
+        q_new, qd_new = np.empty_like(self.q), np.empty_like(self.qd)
+        q, qd = self.q.copy(), self.qd.copy()
+        with compiling(dca_steps):
+            done, status = dca_steps(n, self.dt, self.integrator_name == "rk4",
+                                     plan(self.model).arrays, self.tree.arrays,
+                                     dca.body_arrays(self.model), self._rotational, q, qd,
+                                     self.data.kin.arrays, self.data.arrays, q_new, qd_new)
+        self.q, self.qd = q, qd
+        self._advance(done)
+        if status:
+            self._check_step(q_new, qd_new)
+        return self
+
+    def _advance(self, steps):
+        self.step_count += steps
+        self.t = self.step_count * self.dt
+
+    def _check_step(self, q, qd):
+        """The checks of a step's new state ``(q, qd)``: a SimulationError if it is
+        not finite or turns a rotational dof by more than half a turn."""
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+            self._blow_up(q, qd)
+        fast = np.flatnonzero(self._rotational & (np.abs(qd) * self.dt > np.pi))
+        if len(fast):
+            joint = self.model.joint_names[self.model.dof_joint[fast[0]]]
+            raise SimulationError(
+                f"step {self.step_count + 1} (t = {self.t + self.dt:.6g} s): joint "
+                f"{joint!r} turns {abs(qd[fast[0]]) * self.dt:.3g} rad in one step (more "
+                f"than half a turn): the simulation is diverging; reduce the time step"
+                + (" or the adaptive threshold (dropped accelerations feed energy in)"
+                   if self.adaptive is not None else "")
+                + ("; or the forces of controller / external are too large"
+                   if self.controller is not None or self.external is not None else ""))
 
     def _blow_up(self, q, qd):
         bad = np.flatnonzero(~np.isfinite(qd))

@@ -1,0 +1,161 @@
+"""The compiled core's helpers (vdad._linalg), plain-Python mode and numba's cache."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from strategies import random_configuration, random_tree, with_armature
+
+import vdad
+from vdad import _linalg as L
+from vdad.spatial import pose_to_motion_transform, quat_log, quat_to_rot
+
+EPS = np.finfo(float).eps
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_products_match_numpy():
+    rng = np.random.default_rng(0)
+    A, B = rng.normal(size=(2, 6, 6))
+    x = rng.normal(size=6)
+    out, v = np.empty((6, 6)), np.empty(6)
+    for fn, expected in ((L.mm6, A @ B), (L.mmt6, A @ B.T), (L.mtm6, A.T @ B)):
+        fn(A, B, out)
+        np.testing.assert_allclose(out, expected, rtol=0, atol=50 * EPS)
+    L.mv6(A, x, v)
+    np.testing.assert_allclose(v, A @ x, rtol=0, atol=50 * EPS)
+    v[:] = 1.0
+    L.mtv6_add(A, x, -2.0, v)
+    np.testing.assert_allclose(v, 1.0 - 2.0 * A.T @ x, rtol=0, atol=50 * EPS)
+    L.symmetric_part(A, out)
+    np.testing.assert_allclose(out, 0.5 * (A + A.T), rtol=0, atol=EPS)
+
+
+def test_rotations_and_transforms_match_vdad_spatial():
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=4)
+    R = np.empty((3, 3))
+    L.quaternion_rotation(q, R)
+    np.testing.assert_allclose(R, quat_to_rot(q / np.linalg.norm(q)), rtol=0, atol=10 * EPS)
+    r = np.empty(3)
+    L.quaternion_log(q, r)
+    np.testing.assert_allclose(r, quat_log(q / np.linalg.norm(q)), rtol=0, atol=10 * EPS)
+    p, m = rng.normal(size=3), rng.normal(size=6)
+    out = np.empty(6)
+    L.motion_to_child(R, p, m, out)
+    np.testing.assert_allclose(out, pose_to_motion_transform(R, p) @ m, rtol=0, atol=20 * EPS)
+
+
+@pytest.mark.parametrize("d", range(7))
+def test_complement_spans_the_null_space_of_S_transposed(d):
+    rng = np.random.default_rng(d)
+    S = np.zeros((6, 6))
+    S[:, :d] = rng.normal(size=(6, d))
+    T, W = np.empty((6, 6)), np.empty((6, 6))
+    L.complement(S, d, T, W, np.empty((3, 6, 6)))
+    Tn, Wn = T[:, :6 - d], W[:, :d]
+    cond = np.linalg.cond(S[:, :d]) if d else 1.0
+    np.testing.assert_allclose(Tn.T @ Tn, np.eye(6 - d), rtol=0, atol=50 * EPS)
+    np.testing.assert_allclose(S[:, :d].T @ Tn, 0, rtol=0, atol=50 * cond * EPS)
+    np.testing.assert_allclose(S[:, :d].T @ Wn, np.eye(d), rtol=0, atol=50 * cond**2 * EPS)
+    assert not T[:, 6 - d:].any() and not W[:, d:].any()
+
+
+def test_solve_general_and_cholesky():
+    rng = np.random.default_rng(3)
+    K = rng.normal(size=(6, 6))
+    x = rng.normal(size=(6, 2))
+    Kc, xc = K.copy(), x.copy()
+    assert L.solve_general(Kc, xc, 4)
+    np.testing.assert_allclose(xc[:4], np.linalg.solve(K[:4, :4], x[:4]), rtol=1e-12)
+    np.testing.assert_array_equal(xc[4:], x[4:])
+    assert not L.solve_general(np.zeros((6, 6)), x.copy(), 3)
+    spd = K @ K.T + np.eye(6)
+    C = spd.copy()
+    assert L.cholesky(C, 6)
+    np.testing.assert_allclose(np.tril(C), np.linalg.cholesky(spd), rtol=1e-12)
+    assert not L.cholesky(-np.eye(6), 6)
+
+
+SMALL = """
+import json, sys, time
+import numpy as np
+sys.path.insert(0, {tests!r})
+from strategies import random_configuration, random_tree, with_armature
+import vdad
+model = with_armature(random_tree(5, n=6, roots=2, composite=True), 5)
+rng = np.random.default_rng(5)
+q = random_configuration(model, rng)
+qd, tau = rng.normal(size=model.nv), rng.normal(size=model.nv)
+f = rng.normal(size=(model.nb, 6))
+t0 = time.perf_counter()
+qdd = vdad.forward_dynamics(model, q, qd, tau, f)
+print(json.dumps(dict(qdd=qdd.tolist(), first_call_s=time.perf_counter() - t0,
+                      where=vdad.__file__)))
+"""
+
+
+def _run(code, env=None, cwd=None):
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**os.environ, **(env or {})}, cwd=cwd, timeout=900)
+    assert done.returncode == 0, done.stderr
+    return done
+
+
+def _expected():
+    model = with_armature(random_tree(5, n=6, roots=2, composite=True), 5)
+    rng = np.random.default_rng(5)
+    q = random_configuration(model, rng)
+    qd, tau = rng.normal(size=model.nv), rng.normal(size=model.nv)
+    f = rng.normal(size=(model.nb, 6))
+    return vdad.forward_dynamics(model, q, qd, tau, f)
+
+
+def test_plain_python_mode_gives_the_compiled_result():
+    """NUMBA_DISABLE_JIT=1 runs the kernels as plain Python (a debugger can step
+    through a pass): the same accelerations as the compiled core."""
+    done = _run(SMALL.format(tests=str(ROOT / "tests")), {"NUMBA_DISABLE_JIT": "1"})
+    qdd = np.array(json.loads(done.stdout)["qdd"])
+    expected = _expected()
+    np.testing.assert_allclose(qdd, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    assert L.NOTICE not in done.stderr
+
+
+def test_read_only_install_compiles_once_then_loads_from_the_user_cache(tmp_path):
+    """An installed copy of the package whose folder cannot take numba's cache (a
+    file stands where __pycache__ would go; it is also made read-only) caches in
+    the user's cache folder: the first process says once that it compiles, the
+    second loads the kernels in well under a second and says nothing."""
+    site = tmp_path / "site"
+    shutil.copytree(ROOT / "vdad", site / "vdad",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
+    for folder in [site / "vdad", *[p for p in (site / "vdad").rglob("*") if p.is_dir()]]:
+        (folder / "__pycache__").write_text("not a folder")
+    for p in site.rglob("*"):
+        p.chmod(0o555 if p.is_dir() else 0o444)
+    cache = tmp_path / "cache"
+    env = {"PYTHONPATH": str(site), "XDG_CACHE_HOME": str(cache), "NUMBA_CACHE_DIR": ""}
+    code = SMALL.format(tests=str(ROOT / "tests"))
+    try:
+        first = _run(code, env, cwd=tmp_path)
+        second = _run(code, env, cwd=tmp_path)
+    finally:
+        for p in site.rglob("*"):
+            p.chmod(0o755 if p.is_dir() else 0o644)
+    assert first.stderr.count(L.NOTICE) == 1, first.stderr
+    assert L.NOTICE not in second.stderr
+    assert any(cache.rglob("*.nbi")), "numba wrote no cache index in the user cache"
+    expected = _expected()
+    out = [json.loads(done.stdout) for done in (first, second)]
+    for o in out:
+        np.testing.assert_allclose(np.array(o["qdd"]), expected, rtol=0,
+                                   atol=1e-12 * np.abs(expected).max())
+    assert all(o["where"].startswith(str(site)) for o in out)
+    assert out[1]["first_call_s"] < 1.0, f"loading the cached kernels took {out[1]}"

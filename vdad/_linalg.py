@@ -1,0 +1,409 @@
+"""Small fixed-size products for the compiled kernels (PyElastica's ``_linalg.py``).
+
+Every helper writes into an ``out`` array it is given, loops over literal sizes
+(``range(6)``, ``range(3)``: numba unrolls them, loops over ``A.shape`` cost 1.6x
+the whole kernel, ``../shared/prototypes/numba-dca/MEASUREMENTS.md``) and
+allocates nothing. ``@`` and ``np.linalg`` are not used inside kernels: numba would
+need SciPy for them and would call BLAS and allocate per 6x6 product. Spatial
+conventions are those of :mod:`vdad.spatial` (theory §1): motion ``(w; v)``,
+force ``(n; f)``, angular part first.
+
+With ``NUMBA_DISABLE_JIT=1`` these are plain Python functions. The module also
+holds the two decorators of vdad's compiled code and :func:`compiling`, the
+one-line notice of a first compilation.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import threading
+
+import numpy as np
+from numba import njit
+
+#: decorator of the passes that Python calls (numba's on-disk cache) ...
+kernel = njit(cache=True)
+#: ... and of the per-node and per-joint kernels and the small products below,
+#: which numba inlines into the passes that call them: a call between compiled
+#: functions is not inlined by LLVM and costs ~10 ns per array argument, more
+#: than the arithmetic of a joint (docs/design.md, "The compiled core")
+inlined = njit(cache=True, inline="always")
+
+NOTICE = ("vdad: compiling the numba kernels (once per installation, about a minute; "
+          "later runs load them from numba's cache)")
+_noticed = threading.Event()
+
+
+@contextlib.contextmanager
+def _announce():
+    timer = threading.Timer(1.0, _notice)
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
+def _notice():
+    if not _noticed.is_set():
+        _noticed.set()
+        print(NOTICE, file=sys.stderr, flush=True)
+
+
+def compiling(dispatcher):
+    """A context for a call of the compiled ``dispatcher``: on its first call in a
+    process (when numba still has to load or compile it), :data:`NOTICE` is printed
+    once on stderr if the call takes more than a second (compiling takes a minute,
+    loading from the cache a fraction of a second)."""
+    if dispatcher in _called:
+        return _NOTHING
+    _called.add(dispatcher)
+    return _announce()
+
+
+_called = set()
+_NOTHING = contextlib.nullcontext()
+
+
+def as_input(a):
+    """``a`` as the one array type the kernels are compiled for: float64,
+    C-contiguous and writable (a read-only or strided array would make numba
+    compile another version of every kernel it reaches, a minute each)."""
+    if (type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous
+            and a.flags.writeable):
+        return a
+    return np.array(a, dtype=float, order="C")
+
+
+# --- 6x6 and 6-vector products ---------------------------------------------------------
+
+@inlined
+def mm6(A, B, out):
+    """``out = A B`` (6, 6)."""
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += A[i, k] * B[k, j]
+            out[i, j] = s
+
+
+@inlined
+def mmt6(A, B, out):
+    """``out = A B^T`` (6, 6)."""
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += A[i, k] * B[j, k]
+            out[i, j] = s
+
+
+@inlined
+def mtm6(A, B, out):
+    """``out = A^T B`` (6, 6)."""
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += A[k, i] * B[k, j]
+            out[i, j] = s
+
+
+@inlined
+def mv6(A, x, out):
+    """``out = A x`` (6,)."""
+    for i in range(6):
+        s = 0.0
+        for k in range(6):
+            s += A[i, k] * x[k]
+        out[i] = s
+
+
+@inlined
+def mtv6_add(A, x, s, out):
+    """``out += s A^T x`` (6,)."""
+    for i in range(6):
+        acc = 0.0
+        for k in range(6):
+            acc += A[k, i] * x[k]
+        out[i] += s * acc
+
+
+@inlined
+def symmetric_part(A, out):
+    """``out = (A + A^T) / 2`` (6, 6); ``out`` may be ``A``."""
+    for i in range(6):
+        out[i, i] = A[i, i]
+        for j in range(i + 1, 6):
+            s = 0.5 * (A[i, j] + A[j, i])
+            out[i, j] = s
+            out[j, i] = s
+
+
+# --- 3x3 and 3-vector products -----------------------------------------------------------
+
+@inlined
+def mm3(A, B, out):
+    """``out = A B`` (3, 3)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+@inlined
+def mv3(A, x, out):
+    """``out = A x`` (3,); ``out`` must not be ``x``."""
+    for i in range(3):
+        out[i] = A[i, 0] * x[0] + A[i, 1] * x[1] + A[i, 2] * x[2]
+
+
+@inlined
+def cross_motion_add(v, m, out):
+    """``out += crm(v) m`` (6,): ``(w × m_w; w × m_v + v × m_w)``."""
+    w0, w1, w2, v0, v1, v2 = v[0], v[1], v[2], v[3], v[4], v[5]
+    a0, a1, a2, b0, b1, b2 = m[0], m[1], m[2], m[3], m[4], m[5]
+    out[0] += w1 * a2 - w2 * a1
+    out[1] += w2 * a0 - w0 * a2
+    out[2] += w0 * a1 - w1 * a0
+    out[3] += w1 * b2 - w2 * b1 + v1 * a2 - v2 * a1
+    out[4] += w2 * b0 - w0 * b2 + v2 * a0 - v0 * a2
+    out[5] += w0 * b1 - w1 * b0 + v0 * a1 - v1 * a0
+
+
+# --- rotations ------------------------------------------------------------------------
+
+@inlined
+def axis_angle_rotation(a, t, R):
+    """``R = exp(t [a]×)`` (Rodrigues), unit axis ``a``."""
+    c, s = np.cos(t), np.sin(t)
+    C = 1.0 - c
+    x, y, z = a[0], a[1], a[2]
+    R[0, 0] = c + x * x * C
+    R[0, 1] = x * y * C - z * s
+    R[0, 2] = x * z * C + y * s
+    R[1, 0] = y * x * C + z * s
+    R[1, 1] = c + y * y * C
+    R[1, 2] = y * z * C - x * s
+    R[2, 0] = z * x * C - y * s
+    R[2, 1] = z * y * C + x * s
+    R[2, 2] = c + z * z * C
+
+
+@inlined
+def quaternion_rotation(q, R):
+    """``R`` of the quaternion ``q = (w, x, y, z)``, normalised first (as
+    :func:`vdad.spatial.quat_to_rot` of ``q / |q|``)."""
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    w, x, y, z = q[0] / n, q[1] / n, q[2] / n, q[3] / n
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - w * z)
+    R[0, 2] = 2 * (x * z + w * y)
+    R[1, 0] = 2 * (x * y + w * z)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - w * x)
+    R[2, 0] = 2 * (x * z - w * y)
+    R[2, 1] = 2 * (y * z + w * x)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@inlined
+def quaternion_log(q, out):
+    """Rotation vector ``out`` (3,) of ``q / |q|``, angle in [0, pi]
+    (:func:`vdad.spatial.quat_log`)."""
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sign = -1.0 if q[0] < 0 else 1.0
+    w = sign * q[0] / n
+    x, y, z = sign * q[1] / n, sign * q[2] / n, sign * q[3] / n
+    s = np.sqrt(x * x + y * y + z * z)
+    k = 2.0 / max(w, 1e-300) if s <= 1e-12 else 2.0 * np.arctan2(s, w) / s
+    out[0] = k * x
+    out[1] = k * y
+    out[2] = k * z
+
+
+@inlined
+def quaternion_step(q, w, dt, out):
+    """``out = q ⊗ exp(w dt)``, normalised: a ball stage turned by its body-frame
+    angular velocity ``w`` (3,) over ``dt`` (:func:`vdad.spatial.quat_exp`)."""
+    wx, wy, wz = w[0] * dt, w[1] * dt, w[2] * dt
+    angle = np.sqrt(wx * wx + wy * wy + wz * wz)
+    half = 0.5 * angle
+    k = np.sin(half) / angle if angle > 1e-8 else 0.5 - angle * angle / 48.0
+    ew, ex, ey, ez = np.cos(half), k * wx, k * wy, k * wz
+    aw, ax, ay, az = q[0], q[1], q[2], q[3]
+    rw = aw * ew - ax * ex - ay * ey - az * ez
+    rx = aw * ex + ax * ew + ay * ez - az * ey
+    ry = aw * ey - ax * ez + ay * ew + az * ex
+    rz = aw * ez + ax * ey - ay * ex + az * ew
+    n = np.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    out[0] = rw / n
+    out[1] = rx / n
+    out[2] = ry / n
+    out[3] = rz / n
+
+
+# --- spatial transforms ---------------------------------------------------------------
+
+@inlined
+def motion_to_child(R, p, m, out):
+    """``out = X m`` (6,): the motion ``m`` of a parent frame seen in a child frame
+    at pose ``(R, p)`` in it (:func:`vdad.spatial.pose_to_motion_transform`):
+    ``(R^T w; R^T (v + w × p))``."""
+    w0, w1, w2 = m[0], m[1], m[2]
+    t0 = m[3] + w1 * p[2] - w2 * p[1]
+    t1 = m[4] + w2 * p[0] - w0 * p[2]
+    t2 = m[5] + w0 * p[1] - w1 * p[0]
+    for i in range(3):
+        out[i] = R[0, i] * w0 + R[1, i] * w1 + R[2, i] * w2
+        out[3 + i] = R[0, i] * t0 + R[1, i] * t1 + R[2, i] * t2
+
+
+@inlined
+def port_transform(R, r, c, X):
+    """``X_{h<-c}`` (6, 6), theory (T2): motion at the centre of mass ``c`` (body
+    axes) to a port frame at ``r`` whose axes are the columns of ``R`` (body axes):
+    ``[[E, 0], [E [c - r]×, E]]`` with ``E = R^T``."""
+    d0, d1, d2 = c[0] - r[0], c[1] - r[1], c[2] - r[2]
+    for i in range(3):
+        e0, e1, e2 = R[0, i], R[1, i], R[2, i]          # row i of E
+        X[i, 0] = e0
+        X[i, 1] = e1
+        X[i, 2] = e2
+        X[i, 3] = 0.0
+        X[i, 4] = 0.0
+        X[i, 5] = 0.0
+        X[3 + i, 0] = e1 * d2 - e2 * d1                 # row i of E [d]×
+        X[3 + i, 1] = e2 * d0 - e0 * d2
+        X[3 + i, 2] = e0 * d1 - e1 * d0
+        X[3 + i, 3] = e0
+        X[3 + i, 4] = e1
+        X[3 + i, 5] = e2
+
+
+@inlined
+def times_inverse_inertia(X, Iinv, m, out):
+    """``out = X diag(I^-1, 1/m)`` (6, 6), ``Iinv`` = ``I^-1`` (3, 3)."""
+    for i in range(6):
+        for j in range(3):
+            out[i, j] = X[i, 0] * Iinv[0, j] + X[i, 1] * Iinv[1, j] + X[i, 2] * Iinv[2, j]
+            out[i, 3 + j] = X[i, 3 + j] / m
+
+
+# --- small dense solves ----------------------------------------------------------------
+
+@inlined
+def cholesky(K, n):
+    """Lower Cholesky factor of the leading ``n x n`` block of ``K``, in place
+    (the upper triangle is left as it was). Returns False if the block is not
+    positive definite."""
+    for r in range(n):
+        for s in range(r + 1):
+            acc = K[r, s]
+            for k in range(s):
+                acc -= K[r, k] * K[s, k]
+            if r == s:
+                if not acc > 0.0:
+                    return False
+                K[r, r] = np.sqrt(acc)
+            else:
+                K[r, s] = acc / K[s, s]
+    return True
+
+
+@inlined
+def solve_general(K, x, n):
+    """``x = K^-1 x`` for the leading ``n x n`` block of ``K`` and the first ``n``
+    rows of ``x`` (n, m), by Gaussian elimination with partial pivoting; ``K`` and
+    ``x`` are overwritten. Returns False if ``K`` is singular."""
+    m = x.shape[1]
+    for c in range(n):
+        piv, big = c, abs(K[c, c])
+        for r in range(c + 1, n):
+            if abs(K[r, c]) > big:
+                piv, big = r, abs(K[r, c])
+        if big == 0.0:
+            return False
+        if piv != c:
+            for k in range(n):
+                K[c, k], K[piv, k] = K[piv, k], K[c, k]
+            for k in range(m):
+                x[c, k], x[piv, k] = x[piv, k], x[c, k]
+        for r in range(c + 1, n):
+            f = K[r, c] / K[c, c]
+            if f != 0.0:
+                for k in range(c, n):
+                    K[r, k] -= f * K[c, k]
+                for k in range(m):
+                    x[r, k] -= f * x[c, k]
+    for c in range(n - 1, -1, -1):
+        for k in range(m):
+            acc = x[c, k]
+            for j in range(c + 1, n):
+                acc -= K[c, j] * x[j, k]
+            x[c, k] = acc / K[c, c]
+    return True
+
+
+@inlined
+def complement(S, d, T, W, work):
+    """``T`` and ``W`` of theory (T5) for the first ``d`` columns of ``S`` (6, 6):
+    ``T``'s first ``6 - d`` columns an orthonormal basis of ``null(S^T)`` (from a
+    Householder QR of ``S``), ``W = S (S^T S)^-1`` in ``W``'s first ``d`` columns;
+    the other columns zero. ``work`` (3, 6, 6) is scratch. Any basis of
+    ``null(S^T)`` gives the same (T7)."""
+    Q, G, Z = work[0], work[1], work[2]
+    h = np.empty(6)
+    for i in range(6):
+        for j in range(6):
+            Q[i, j] = S[i, j] if j < d else 0.0
+            T[i, j] = 0.0
+            W[i, j] = 0.0
+    # Householder reflectors H_k = 1 - 2 h h^T; h_k kept in column k of Q
+    for k in range(d):
+        norm = 0.0
+        for i in range(k, 6):
+            norm += Q[i, k] * Q[i, k]
+        norm = np.sqrt(norm)
+        alpha = -norm if Q[k, k] >= 0 else norm
+        for i in range(6):
+            h[i] = Q[i, k] if i >= k else 0.0
+        h[k] -= alpha
+        hn = 0.0
+        for i in range(k, 6):
+            hn += h[i] * h[i]
+        hn = np.sqrt(hn)
+        for i in range(6):
+            h[i] = h[i] / hn if hn > 0 else 0.0
+        for j in range(k + 1, d):                  # apply H_k to the remaining columns
+            s = 0.0
+            for i in range(k, 6):
+                s += h[i] * Q[i, j]
+            for i in range(k, 6):
+                Q[i, j] -= 2.0 * s * h[i]
+        for i in range(6):
+            Q[i, k] = h[i]
+    # T's columns: H_0 ... H_{d-1} e_{d+c}
+    for c in range(6 - d):
+        for i in range(6):
+            T[i, c] = 1.0 if i == d + c else 0.0
+        for k in range(d - 1, -1, -1):
+            s = 0.0
+            for i in range(6):
+                s += Q[i, k] * T[i, c]
+            for i in range(6):
+                T[i, c] -= 2.0 * s * Q[i, k]
+    # W = S (S^T S)^-1: solve (S^T S) Z = S^T, W = Z^T
+    for i in range(d):
+        for j in range(d):
+            s = 0.0
+            for k in range(6):
+                s += S[k, i] * S[k, j]
+            G[i, j] = s
+        for j in range(6):
+            Z[i, j] = S[j, i]
+    solve_general(G, Z, d)
+    for i in range(6):
+        for j in range(d):
+            W[i, j] = Z[j, i]
