@@ -134,7 +134,7 @@ def write_tables(result):
         ratios = ["" if r[f"{k}_us"] is None or r["method"] != "dca"
                   else fmt(1e3 * dca[r["scene"]] / r[f"{k}_us"], 0) + "x"
                   for k in ("pinocchio", "mujoco")]
-        before = old.get((r["scene"], r["method"]))
+        before = None if r.get("earlier") else old.get((r["scene"], r["method"]))
         lines.append(f"| {r['scene']} | {r['method']}{' *' if r.get('earlier') else ''} | "
                      f"{'' if r['threshold'] is None else r['threshold']} | "
                      f"{fmt(r['ms_per_step'], 2)} | {fmt(r['active_joints'])} of {r['joints']} "

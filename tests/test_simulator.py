@@ -238,32 +238,74 @@ def test_body_poses_take_names_or_indices_in_range(method):
             sim.body_poses(bad)
 
 
+SCENES = {"pendulum": lambda: pendulum(20, axes="alternate"),
+          "dog puppet": lambda: vdad.scenes.dog_puppet(),
+          "hanging dogs": lambda: vdad.scenes.hanging_dogs(n_dogs=4, columns=2),
+          "falling character": lambda: vdad.scenes.falling_character()}
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_compiled_steps_equal_the_python_steps_on_every_scene(name):
+    """Simulator.step(n) of a scene (forces of vdad's own elements) runs whole steps
+    in compiled code (vdad.integrators.dca_steps, forces by vdad.forces.apply_forces);
+    the same forces as Python callables take the Python-level step: 1000 steps
+    agree to 1e-12 (they share every kernel, so they agree to the last bit)."""
+    scene = SCENES[name]()
+    fast = scene.simulator()
+    assert fast.force_tables() is not None
+    ext, ctl = scene.external, scene.controller
+    slow = scene.simulator(
+        external=None if ext is None else (lambda t, q, qd: ext(t, q, qd)),
+        controller=(lambda t, q, qd: np.zeros(scene.model.nv)) if ctl is None
+        else (lambda t, q, qd: ctl(t, q, qd)))
+    assert slow.force_tables() is None
+    fast.step(1000)
+    slow.step(1000)
+    assert fast.step_count == slow.step_count == 1000 and fast.t == slow.t
+    for a, b in ((fast.q, slow.q), (fast.qd, slow.qd)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * max(1.0, np.abs(b).max()))
+    assert np.abs(fast.qd).max() > 0.1                        # it moved
+
+
 @pytest.mark.parametrize("integrator", ["semi-implicit", "rk4"])
-@pytest.mark.parametrize("case", ["pendulum", "random tree"])
-def test_compiled_steps_equal_the_python_steps(case, integrator):
-    """Simulator.step(n) without Python callables runs the steps in compiled code
-    (vdad.integrators.dca_steps); a controller that returns zeros takes the
-    Python-level step (integrator, then forward dynamics): 1000 steps agree to
-    1e-12, on a pendulum and on a random tree of every joint kind with springs,
-    dampers and armature."""
-    if case == "pendulum":
-        scene = pendulum(20, axes="alternate")
-        model, q0, qd0 = scene.model, scene.q0, None
-    else:
-        from strategies import random_tree
-        model = with_armature(random_tree(4, n=10, roots=2, composite=True), 4)
-        rng = np.random.default_rng(4)
-        q0, qd0 = random_configuration(model, rng), 0.3 * rng.normal(size=model.nv)
+def test_compiled_rk4_and_euler_steps_equal_the_python_steps(integrator):
+    """The same on a random tree of every joint kind with springs, dampers and
+    armature, by both integrators."""
+    from strategies import random_tree
+
+    model = with_armature(random_tree(4, n=10, roots=2, composite=True), 4)
+    rng = np.random.default_rng(4)
+    q0, qd0 = random_configuration(model, rng), 0.3 * rng.normal(size=model.nv)
     fast = vdad.Simulator(model, q0, qd0, dt=1e-3, integrator=integrator)
     slow = vdad.Simulator(model, q0, qd0, dt=1e-3, integrator=integrator,
                           controller=lambda t, q, qd: np.zeros(model.nv))
     fast.step(1000)
     slow.step(1000)
-    assert fast.step_count == slow.step_count == 1000 and fast.t == slow.t
-    scale = max(1.0, np.abs(slow.qd).max())
-    np.testing.assert_allclose(fast.q, slow.q, rtol=0, atol=1e-12 * max(1.0, np.abs(slow.q).max()))
-    np.testing.assert_allclose(fast.qd, slow.qd, rtol=0, atol=1e-12 * scale)
-    assert np.abs(fast.qd).max() > 0.1                        # it moved
+    for a, b in ((fast.q, slow.q), (fast.qd, slow.qd)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * max(1.0, np.abs(b).max()))
+    assert np.abs(fast.qd).max() > 0.1
+
+
+def test_only_vdads_own_forces_run_compiled():
+    """A Forces of vdad's elements runs compiled; a user element, a callable of
+    one's own, or half of a Forces (its external without its controller) runs in
+    Python."""
+    from vdad.forces import Drag, Forces, JointLimits
+
+    scene = pendulum(3)
+    model = scene.model
+    forces = Forces(model, [Drag(model, 0.5), JointLimits(model, {"joint1": (-1, 1)})])
+    assert vdad.Simulator(model, external=forces.external,
+                          controller=forces.controller).force_tables() is not None
+    assert vdad.Simulator(model, external=forces.external).force_tables() is None
+
+    class Mine(Drag):
+        pass
+
+    assert vdad.Simulator(model, external=Forces(model, [Mine(model, 0.5)]).external
+                          ).force_tables() is None
+    assert vdad.Simulator(model, external=lambda t, q, qd: np.zeros((3, 6))
+                          ).force_tables() is None
 
 
 def test_compiled_steps_stop_at_the_diverging_step():

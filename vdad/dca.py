@@ -428,13 +428,12 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
 
 
 @kernel
-def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
-    """One DCA evaluation: kinematics, joint forces ``tau = tau_in - D qd - K d``,
-    the leaves, the bottom-up pass (internal nodes ascending: children first) and
-    the top-down pass (descending); ``qdd`` ends in ``work``."""
+def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
+    """The DCA on kinematics ``kin`` already computed for ``(q, qd)``: joint forces
+    ``tau = tau_in - D qd - K d``, the leaves, the bottom-up pass (internal nodes
+    ascending: children first) and the top-down pass (descending); ``qdd`` ends in
+    ``work``."""
     Phi, b, Y, Wm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
-    R_rel, p_rel, S, T, W, R, p, v, c = kin
-    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c)
     passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
                         q, qd, tau)
     for r in range(tau_in.shape[0]):
@@ -448,3 +447,12 @@ def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
                       tmp)
     for i in range(n_int - 1, -1, -1):
         solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp)
+
+
+@kernel
+def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
+    """One DCA evaluation: the kinematics of ``(q, qd)`` (theory §3), then
+    :func:`dynamics_pass`."""
+    R_rel, p_rel, S, T, W, R, p, v, c = kin
+    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c)
+    dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._linalg import as_input, inlined, kernel, quaternion_log
 from .checks import check_real, real_array, show
 from .errors import InputError, ModelError
 from .kinematics import Kinematics, joint_set, kinematics
@@ -58,8 +59,164 @@ class BodyStates:
     def __call__(self, q, qd):
         js = self.js
         kin = kinematics(self.model, q[js.q_index], qd[js.v_index], js, self._kin)
-        R, p, v = kin.R[self.rows], kin.p[self.rows], kin.v[self.rows]
-        return R, p, mv(R, v[:, :3]), mv(R, v[:, 3:])
+        w, v = np.empty((js.k, 3)), np.empty((js.k, 3))
+        world_velocities(kin.R, kin.v, w, v)
+        rows = self.rows
+        return kin.R[rows], kin.p[rows], w[rows], v[rows]
+
+
+# --- compiled kernels: one per element kind ----------------------------------------------
+
+@inlined
+def world_velocities(R, v, w, vo):
+    """Angular velocities ``w`` and origin velocities ``vo`` (k, 3) in world axes of
+    bodies with rotations ``R`` and body-axes velocities ``v`` (k, 6)."""
+    for i in range(R.shape[0]):
+        Ri, vi = R[i], v[i]
+        for r in range(3):
+            w[i, r] = Ri[r, 0] * vi[0] + Ri[r, 1] * vi[1] + Ri[r, 2] * vi[2]
+            vo[i, r] = Ri[r, 0] * vi[3] + Ri[r, 1] * vi[4] + Ri[r, 2] * vi[5]
+
+
+# Each reads body states (R (., 3, 3), p, w, v (., 3), world) at the rows ``rows`` and
+# adds its wrenches (torque about the centre of mass, force; world axes) into
+# ``f[target]`` (., 6): the elements' own methods call them with their bodies' states
+# and ``target = 0..k-1``, the compiled step loop with every body's state.
+
+@inlined
+def _add_point_force(x, F, p, R, com, f):
+    """``f += ((x - c) × F, F)`` with ``c = p + R com`` the centre of mass."""
+    c0 = p[0] + R[0, 0] * com[0] + R[0, 1] * com[1] + R[0, 2] * com[2]
+    c1 = p[1] + R[1, 0] * com[0] + R[1, 1] * com[1] + R[1, 2] * com[2]
+    c2 = p[2] + R[2, 0] * com[0] + R[2, 1] * com[1] + R[2, 2] * com[2]
+    d0, d1, d2 = x[0] - c0, x[1] - c1, x[2] - c2
+    f[0] += d1 * F[2] - d2 * F[1]
+    f[1] += d2 * F[0] - d0 * F[2]
+    f[2] += d0 * F[1] - d1 * F[0]
+    f[3] += F[0]
+    f[4] += F[1]
+    f[5] += F[2]
+
+
+@inlined
+def spring_wrenches(rows, target, points, com, anchors, anchor_vel, stiffness, damping, rest,
+                    string, R, p, w, v, f):
+    """:class:`Springs` (``docs/forces.md``): the force ``-(k (L - L0) + c dL/dt) u``
+    at each attachment point, ``u`` the unit vector from the anchor; a string
+    pulls only while ``L > L0`` and never pushes."""
+    x, F = np.empty(3), np.empty(3)
+    for i in range(rows.shape[0]):
+        b = rows[i]
+        Rb, pt = R[b], points[i]
+        for r in range(3):
+            x[r] = Rb[r, 0] * pt[0] + Rb[r, 1] * pt[1] + Rb[r, 2] * pt[2]   # R point
+        d0, d1, d2 = p[b, 0] + x[0] - anchors[i, 0], p[b, 1] + x[1] - anchors[i, 1], \
+            p[b, 2] + x[2] - anchors[i, 2]
+        L = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        s = max(L, 1e-12)
+        u0, u1, u2 = d0 / s, d1 / s, d2 / s
+        wb, vb = w[b], v[b]
+        r0 = vb[0] + wb[1] * x[2] - wb[2] * x[1] - anchor_vel[i, 0]
+        r1 = vb[1] + wb[2] * x[0] - wb[0] * x[2] - anchor_vel[i, 1]
+        r2 = vb[2] + wb[0] * x[1] - wb[1] * x[0] - anchor_vel[i, 2]
+        T = stiffness[i] * (L - rest[i]) + damping[i] * (u0 * r0 + u1 * r1 + u2 * r2)
+        if string[i]:
+            T = max(T, 0.0) if L > rest[i] else 0.0
+        for r in range(3):
+            x[r] += p[b, r]
+        F[0], F[1], F[2] = -T * u0, -T * u1, -T * u2
+        _add_point_force(x, F, p[b], Rb, com[i], f[target[i]])
+
+
+@inlined
+def drag_wrenches(rows, target, rate, mass, com, inertia, R, p, w, v, f):
+    """:class:`Drag`: ``-rate (I w; m v_c)``, ``I`` in world axes, ``v_c`` the
+    velocity of the centre of mass (``rate`` per row)."""
+    a, Ia, c = np.empty(3), np.empty(3), np.empty(3)
+    for i in range(rows.shape[0]):
+        b, Rb, wb = rows[i], R[rows[i]], w[rows[i]]
+        for r in range(3):
+            a[r] = Rb[0, r] * wb[0] + Rb[1, r] * wb[1] + Rb[2, r] * wb[2]   # R^T w
+            c[r] = Rb[r, 0] * com[i, 0] + Rb[r, 1] * com[i, 1] + Rb[r, 2] * com[i, 2]
+        I = inertia[i]
+        for r in range(3):
+            Ia[r] = I[r, 0] * a[0] + I[r, 1] * a[1] + I[r, 2] * a[2]
+        fi = f[target[i]]
+        vc0 = v[b, 0] + wb[1] * c[2] - wb[2] * c[1]
+        vc1 = v[b, 1] + wb[2] * c[0] - wb[0] * c[2]
+        vc2 = v[b, 2] + wb[0] * c[1] - wb[1] * c[0]
+        for r in range(3):
+            fi[r] -= rate[i] * (Rb[r, 0] * Ia[0] + Rb[r, 1] * Ia[1] + Rb[r, 2] * Ia[2])
+        fi[3] -= rate[i] * (mass[i] * vc0)
+        fi[4] -= rate[i] * (mass[i] * vc1)
+        fi[5] -= rate[i] * (mass[i] * vc2)
+
+
+@inlined
+def floor_wrenches(rows, target, centres, radii, com, k, c, friction, height, R, p, w, v, f):
+    """:class:`FloorContact`: per contact sphere, at its lowest point ``x`` at
+    depth ``height - x_z``, the normal force ``max(0, k d - c v_z)`` while it
+    touches and the friction ``-min(mu F_n, c |v_t|) v_t / |v_t|`` (``friction``
+    and ``height`` per point)."""
+    x, F = np.empty(3), np.empty(3)
+    for m in range(rows.shape[0]):
+        b = rows[m]
+        Rb, cm = R[b], centres[m]
+        for r in range(3):
+            x[r] = p[b, r] + Rb[r, 0] * cm[0] + Rb[r, 1] * cm[1] + Rb[r, 2] * cm[2]
+        x[2] -= radii[m]
+        depth = height[m] - x[2]
+        wb, vb = w[b], v[b]
+        e0, e1, e2 = x[0] - p[b, 0], x[1] - p[b, 1], x[2] - p[b, 2]
+        xd0 = vb[0] + wb[1] * e2 - wb[2] * e1
+        xd1 = vb[1] + wb[2] * e0 - wb[0] * e2
+        xd2 = vb[2] + wb[0] * e1 - wb[1] * e0
+        Fn = max(k[m] * depth - c[m] * xd2, 0.0) if depth > 0 else 0.0
+        speed = np.sqrt(xd0 * xd0 + xd1 * xd1)
+        Ft = min(friction[m] * Fn, c[m] * speed)
+        g = Ft / max(speed, 1e-12)
+        F[0], F[1], F[2] = -g * xd0, -g * xd1, Fn
+        _add_point_force(x, F, p[b], Rb, com[m], f[target[m]])
+
+
+@inlined
+def pulse_torques(t, target, start, torque, duration, f):
+    """:class:`RandomTorques`: the sum of the pulses ``start <= t < start +
+    duration`` on each body (torques in ``f[target][:3]``; ``duration`` per pulse)."""
+    for m in range(start.shape[0]):
+        if start[m] <= t < start[m] + duration[m]:
+            fi = f[target[m]]
+            for r in range(3):
+                fi[r] += torque[m, r]
+
+
+@inlined
+def limit_torques(h_dof, h_q, low, high, h_k, h_c, b_q, b_v, angle, b_k, b_c, q, qd, tau):
+    """:class:`JointLimits`: ``-k e - c max(rate outwards, 0)`` on each hinge or
+    slide beyond ``[low, high]`` by ``e``, and on each ball beyond its cone, along
+    its rotation vector."""
+    for i in range(h_dof.shape[0]):
+        qh = q[h_q[i]]
+        e = max(qh - high[i], 0.0) + min(qh - low[i], 0.0)
+        rate = qd[h_dof[i]]
+        outward = rate if e * rate > 0 else 0.0
+        tau[h_dof[i]] -= h_k[i] * e + h_c[i] * outward
+    r = np.empty(3)
+    for i in range(b_q.shape[0]):
+        quaternion_log(q[b_q[i]:b_q[i] + 4], r)
+        n = np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+        e = max(n - angle[i], 0.0)
+        if e > 0:
+            s = max(n, 1e-12)
+            iv = b_v[i]
+            rate_out = max((qd[iv] * r[0] + qd[iv + 1] * r[1] + qd[iv + 2] * r[2]) / s, 0.0)
+            T = b_k[i] * e + b_c[i] * rate_out
+            for c in range(3):
+                tau[iv + c] -= T * r[c] / s
+
+
+def _rows(k):
+    return np.arange(k, dtype=np.int64)
 
 
 def point_wrenches(model, bodies, R, p, x, F):
@@ -111,19 +268,15 @@ class Springs:
         return np.linalg.norm(p + mv(R, self.points) - self.anchor_state(t)[0], axis=1)
 
     def wrenches(self, t, states):
-        """Wrenches (k, 6) on ``self.bodies``."""
-        R, p, w, v = states
+        """Wrenches (k, 6) on ``self.bodies`` (:func:`spring_wrenches`)."""
+        R, p, w, v = (as_input(s) for s in states)
         a, va = self.anchor_state(t)
-        r = mv(R, self.points)
-        x = p + r
-        d = x - a
-        L = np.linalg.norm(d, axis=1)
-        u = d / np.maximum(L, 1e-12)[:, None]
-        Ldot = np.einsum("ki,ki->k", u, v + cross3(w, r) - va)
-        T = self.stiffness * (L - self.rest_length) + self.damping * Ldot
-        if self.string:
-            T = np.where(L > self.rest_length, np.maximum(T, 0.0), 0.0)
-        return point_wrenches(self.model, self.bodies, R, p, x, -T[:, None] * u)
+        k = len(self.bodies)
+        f = np.zeros((k, 6))
+        spring_wrenches(_rows(k), _rows(k), self.points, self.model.com[self.bodies],
+                        as_input(a), as_input(va), self.stiffness, self.damping,
+                        self.rest_length, np.full(k, self.string), R, p, w, v, f)
+        return f
 
     def energy(self, t, states):
         """Elastic energy ``k (L - L0)^2 / 2`` summed (strings: taut ones)."""
@@ -177,14 +330,22 @@ class RandomTorques:
             self._windows[window] = (rows, start, self.magnitude * axis)
         return self._windows[window]
 
+    def table(self, t0, t1):
+        """Every pulse that acts in ``[t0, t1]``: ``(body rows, start times, torques
+        (n, 3))``, window by window (the order :func:`pulse_torques` sums them)."""
+        windows = [self.pulses(w) for w in range(max(int(np.floor(t0 - self.duration)), 0),
+                                                 int(np.floor(t1)) + 1)]
+        rows, start, tau = zip(*windows, strict=True) if windows else ((), (), ())
+        return (np.concatenate([np.zeros(0, np.int64), *rows]).astype(np.int64),
+                np.concatenate([np.zeros(0), *start]),
+                np.concatenate([np.zeros((0, 3)), *tau]))
+
     def torques(self, t):
         """Torques (k, 3) on ``self.bodies`` at time ``t``."""
-        out = np.zeros((len(self.bodies), 3))
-        for w in range(max(int(np.floor(t - self.duration)), 0), int(np.floor(t)) + 1):
-            rows, start, tau = self.pulses(w)
-            on = (start <= t) & (t < start + self.duration)
-            np.add.at(out, rows[on], tau[on])
-        return out
+        rows, start, tau = self.table(t, t)
+        f = np.zeros((len(self.bodies), 6))
+        pulse_torques(float(t), rows, start, tau, np.full(len(start), self.duration), f)
+        return f[:, :3]
 
     def wrenches(self, t, states=None):
         return np.concatenate([self.torques(t), np.zeros((len(self.bodies), 3))], axis=1)
@@ -202,13 +363,12 @@ class Drag:
         self.bodies = np.arange(model.nb) if bodies is None else body_indices(model, bodies)
 
     def wrenches(self, t, states):
-        R, p, w, v = states
-        m = self.model
-        c = mv(R, m.com[self.bodies])
-        I_world = R @ m.inertia[self.bodies] @ np.swapaxes(R, 1, 2)
-        return -self.rate * np.concatenate([mv(I_world, w),
-                                            m.mass[self.bodies, None] * (v + cross3(w, c))],
-                                           axis=1)
+        R, p, w, v = (as_input(s) for s in states)
+        m, k = self.model, len(self.bodies)
+        f = np.zeros((k, 6))
+        drag_wrenches(_rows(k), _rows(k), np.full(k, self.rate), m.mass[self.bodies],
+                      m.com[self.bodies], m.inertia[self.bodies], R, p, w, v, f)
+        return f
 
 
 def contact_points(model, bodies=None):
@@ -270,7 +430,9 @@ class FloorContact:
         self.friction = float(check_real("friction", friction, nonnegative=True))
         chosen = None if bodies is None else body_indices(model, bodies)
         body, self.centres, self.radii = contact_points(model, chosen)
-        self.bodies, self.point_body = np.unique(body, return_inverse=True)
+        self.bodies, point_body = np.unique(body, return_inverse=True)
+        self.point_body = point_body.astype(np.int64)
+        self.point_com = model.com[self.bodies[self.point_body]]
         n = np.bincount(self.point_body)
         m = model.mass[self.bodies]
         self.k = (m * self.frequency**2 / n)[self.point_body]
@@ -285,20 +447,13 @@ class FloorContact:
         return x, self.height - x[:, 2], v + cross3(w, x - p)
 
     def wrenches(self, t, states):
-        R, p = states[0][self.point_body], states[1][self.point_body]
-        x, depth, xd = self.points(states)
-        touch = depth > 0
-        Fn = np.where(touch, np.maximum(self.k * depth - self.c * xd[:, 2], 0.0), 0.0)
-        vt = xd.copy()
-        vt[:, 2] = 0.0
-        speed = np.linalg.norm(vt, axis=1)
-        Ft = np.minimum(self.friction * Fn, self.c * speed)
-        F = -(Ft / np.maximum(speed, 1e-12))[:, None] * vt
-        F[:, 2] = Fn
-        W = point_wrenches(self.model, self.bodies[self.point_body], R, p, x, F)
-        out = np.zeros((len(self.bodies), 6))
-        np.add.at(out, self.point_body, W)
-        return out
+        R, p, w, v = (as_input(s) for s in states)
+        f = np.zeros((len(self.bodies), 6))
+        n = len(self.point_body)
+        floor_wrenches(self.point_body, self.point_body, self.centres, self.radii,
+                       self.point_com, self.k, self.c, np.full(n, self.friction),
+                       np.full(n, self.height), R, p, w, v, f)
+        return f
 
     def energy(self, t, states):
         """Elastic energy of the penetrating points, ``k d^2 / 2`` summed."""
@@ -384,12 +539,14 @@ class JointLimits:
                 raise ModelError(f"joint {name!r}: limits need a one-dof or ball joint, not "
                                  f"stages {kinds}")
         h = np.array(hinge, float).reshape(-1, 4)
-        self.h_dof, self.low, self.high = h[:, 0].astype(int), h[:, 1], h[:, 2]
-        self.h_q = model.q_start[model.dof_joint[self.h_dof]]
-        self.h_k, self.h_c = h[:, 3] * frequency**2, 2 * zeta * h[:, 3] * frequency
+        h = np.ascontiguousarray(h.T)
+        self.h_dof, self.low, self.high = h[0].astype(np.int64), h[1], h[2]
+        self.h_q = model.q_start[model.dof_joint[self.h_dof]].astype(np.int64)
+        self.h_k, self.h_c = h[3] * frequency**2, 2 * zeta * h[3] * frequency
         b = np.array(ball, float).reshape(-1, 4)
-        self.b_q, self.b_v, self.angle = b[:, 0].astype(int), b[:, 1].astype(int), b[:, 2]
-        self.b_k, self.b_c = b[:, 3] * frequency**2, 2 * zeta * b[:, 3] * frequency
+        b = np.ascontiguousarray(b.T)
+        self.b_q, self.b_v, self.angle = b[0].astype(np.int64), b[1].astype(np.int64), b[2]
+        self.b_k, self.b_c = b[3] * frequency**2, 2 * zeta * b[3] * frequency
 
     def excess(self, q):
         """How far each limit is exceeded: hinges (h,) signed (+: above high,
@@ -400,18 +557,18 @@ class JointLimits:
         r = quat_log(q[self.b_q[:, None] + np.arange(4)]) if len(self.b_q) else np.zeros((0, 3))
         return e_h, np.maximum(np.linalg.norm(r, axis=1) - self.angle, 0.0), r
 
+    @property
+    def arrays(self) -> tuple:
+        """The tables :func:`limit_torques` reads."""
+        return (self.h_dof, self.h_q, self.low, self.high, self.h_k, self.h_c, self.b_q,
+                self.b_v, self.angle, self.b_k, self.b_c)
+
     def tau(self, t, q, qd, out):
-        """Add the limit torques to ``out`` (nv,)."""
-        e_h, e_b, r = self.excess(q)
-        rate = qd[self.h_dof]
-        outward = np.where(e_h * rate > 0, rate, 0.0)
-        out[self.h_dof] -= self.h_k * e_h + self.h_c * outward
-        if len(self.b_q):
-            u = r / np.maximum(np.linalg.norm(r, axis=1), 1e-12)[:, None]
-            w = qd[self.b_v[:, None] + np.arange(3)]
-            rate_out = np.maximum(np.einsum("ki,ki->k", w, u), 0.0)
-            T = np.where(e_b > 0, self.b_k * e_b + self.b_c * rate_out, 0.0)
-            np.add.at(out, self.b_v[:, None] + np.arange(3), -T[:, None] * u)
+        """Add the limit torques to ``out`` (nv,) (:func:`limit_torques`)."""
+        tau = as_input(out)
+        limit_torques(*self.arrays, as_input(q), as_input(qd), tau)
+        if tau is not out:
+            out[:] = tau
 
     def energy(self, q):
         e_h, e_b, _ = self.excess(q)
@@ -514,5 +671,112 @@ class Forces:
         return e
 
 
-__all__ = ["BodyStates", "Drag", "FloorContact", "Forces", "JointLimits", "RandomTorques",
-           "Springs", "contact_points", "joint_inertia", "point_wrenches"]
+class ForceTables:
+    """The elements of a :class:`Forces` as the arrays the compiled step loop reads
+    (:func:`vdad.integrators.dca_steps`), or ``None`` from :meth:`of` where an
+    element is not one of vdad's own (its Python methods must run then).
+
+    Springs, drag and contact act on model bodies; random torques, moving anchors
+    and the pulses' windows depend on time and are tabulated per chunk of steps
+    by :meth:`arrays`."""
+
+    BUILT_IN = ()                # set below the element classes' definitions
+
+    @classmethod
+    def of(cls, forces):
+        if not all(type(e) in cls.BUILT_IN for e in forces.elements):
+            return None
+        return cls(forces)
+
+    def __init__(self, forces):
+        m = forces.model
+        kinds = {k: [e for e in forces.elements if type(e) is k] for k in self.BUILT_IN}
+        sp = kinds[Springs]
+        cat = self._cat
+        self.springs = sp
+        self.spring = (cat([e.bodies for e in sp], np.int64), cat([e.points for e in sp], 3),
+                       cat([m.com[e.bodies] for e in sp], 3),
+                       cat([e.stiffness for e in sp]), cat([e.damping for e in sp]),
+                       cat([e.rest_length for e in sp]),
+                       cat([np.full(len(e.bodies), e.string) for e in sp], bool))
+        dr = kinds[Drag]
+        self.drag = (cat([e.bodies for e in dr], np.int64),
+                     cat([np.full(len(e.bodies), e.rate) for e in dr]),
+                     cat([m.mass[e.bodies] for e in dr]), cat([m.com[e.bodies] for e in dr], 3),
+                     cat([m.inertia[e.bodies] for e in dr], (3, 3)))
+        fc = kinds[FloorContact]
+        self.floor = (cat([e.bodies[e.point_body] for e in fc], np.int64),
+                      cat([e.centres for e in fc], 3), cat([e.radii for e in fc]),
+                      cat([e.point_com for e in fc], 3), cat([e.k for e in fc]),
+                      cat([e.c for e in fc]),
+                      cat([np.full(len(e.point_body), e.friction) for e in fc]),
+                      cat([np.full(len(e.point_body), e.height) for e in fc]))
+        self.pulses = kinds[RandomTorques]
+        lim = [e.arrays for e in kinds[JointLimits]]
+        self.limits = tuple(cat([a[i] for a in lim], np.int64 if i in (0, 1, 6, 7) else float)
+                            for i in range(11))
+        self.empty = not forces.elements
+
+    @staticmethod
+    def _cat(arrays, shape=None):
+        """Concatenation of ``arrays`` as one contiguous array (float64 unless
+        ``shape`` is a dtype; ``shape``: the trailing shape when there are none)."""
+        dtype = shape if isinstance(shape, type) else float
+        tail = () if shape is None or isinstance(shape, type) else (
+            (shape,) if isinstance(shape, int) else shape)
+        if not arrays:
+            return np.zeros((0, *tail), dtype)
+        return np.ascontiguousarray(np.concatenate(arrays), dtype)
+
+    def arrays(self, times):
+        """The tuple :func:`apply_forces` reads, for evaluations at ``times`` (E,):
+        anchors and their velocities per evaluation (one row if none moves) and
+        every random-torque pulse acting between the first and the last time."""
+        cat = self._cat
+        moving = [e for e in self.springs if e.moving]
+        rows = 1 if not moving else len(times)
+        anchors = np.zeros((rows, len(self.spring[0]), 3))
+        velocity = np.zeros_like(anchors)
+        at = 0
+        for e in self.springs:
+            k = len(e.bodies)
+            if e.moving:
+                for r, t in enumerate(times):
+                    anchors[r, at:at + k], velocity[r, at:at + k] = e.anchor_state(t)
+            else:
+                anchors[:, at:at + k] = e.anchors
+            at += k
+        tables = [e.table(float(times[0]), float(times[-1])) for e in self.pulses]
+        pulses = (cat([e.bodies[t[0]] for e, t in zip(self.pulses, tables, strict=True)],
+                      np.int64), cat([t[1] for t in tables]), cat([t[2] for t in tables], 3),
+                  cat([np.full(len(t[1]), e.duration)
+                       for e, t in zip(self.pulses, tables, strict=True)]))
+        return (*self.spring[:3], anchors, velocity, *self.spring[3:], *self.drag, *self.floor,
+                *pulses, *self.limits)
+
+
+@kernel
+def apply_forces(F, e, t, R, p, w, v, q, qd, f, tau):
+    """Every built-in element of the tables ``F`` (:meth:`ForceTables.arrays`) at
+    evaluation ``e`` and time ``t``: wrenches into ``f`` (nb, 6), joint forces into
+    ``tau`` (nv,), from the body states ``R, p, w, v`` of every body."""
+    (s_rows, s_points, s_com, anchors, anchor_vel, s_k, s_c, s_rest, s_string,
+     d_rows, d_rate, d_mass, d_com, d_inertia,
+     c_rows, c_centres, c_radii, c_com, c_k, c_c, c_mu, c_height,
+     p_target, p_start, p_torque, p_duration,
+     h_dof, h_q, low, high, h_k, h_c, b_q, b_v, angle, b_k, b_c) = F
+    a = 0 if anchors.shape[0] == 1 else e
+    spring_wrenches(s_rows, s_rows, s_points, s_com, anchors[a], anchor_vel[a], s_k, s_c,
+                    s_rest, s_string, R, p, w, v, f)
+    drag_wrenches(d_rows, d_rows, d_rate, d_mass, d_com, d_inertia, R, p, w, v, f)
+    floor_wrenches(c_rows, c_rows, c_centres, c_radii, c_com, c_k, c_c, c_mu, c_height, R, p,
+                   w, v, f)
+    pulse_torques(t, p_target, p_start, p_torque, p_duration, f)
+    limit_torques(h_dof, h_q, low, high, h_k, h_c, b_q, b_v, angle, b_k, b_c, q, qd, tau)
+
+
+ForceTables.BUILT_IN = (Springs, RandomTorques, Drag, FloorContact, JointLimits)
+
+
+__all__ = ["BodyStates", "Drag", "FloorContact", "ForceTables", "Forces", "JointLimits",
+           "RandomTorques", "Springs", "contact_points", "joint_inertia", "point_wrenches"]

@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from ._linalg import as_input, inlined, kernel, quaternion_step
-from .dca import dca_pass
+from .dca import dynamics_pass
 from .errors import InputError
-from .kinematics import as_joint_set
+from .forces import apply_forces, world_velocities
+from .kinematics import as_joint_set, kinematics_pass
 
 
 @inlined
@@ -128,43 +129,64 @@ def get_integrator(name):
 
 # --- whole steps in compiled code ------------------------------------------------------
 
-@inlined
-def _accel(js, tree, bodies, q, qd, tau, f_ext, kin, work, out):
-    dca_pass(js, tree, bodies, q, qd, tau, f_ext, kin, work)
+@kernel
+def accelerations(js, tree, bodies, F, e, t, q, qd, kin, work, states, f_ext, tau, out):
+    """``qdd`` (into ``out``) at ``(t, q, qd)`` with the forces of the tables ``F``
+    (:class:`~vdad.forces.ForceTables`) at evaluation ``e``: kinematics, forces
+    from every body's state (world axes, as :class:`~vdad.forces.BodyStates`), the
+    DCA."""
+    R_rel, p_rel, S, T, W, R, p, v, c = kin
+    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c)
+    w, vo = states[0], states[1]
+    world_velocities(R, v, w, vo)
+    for i in range(R.shape[0]):
+        for r in range(6):
+            f_ext[i, r] = 0.0
+    for i in range(tau.shape[0]):
+        tau[i] = 0.0
+    apply_forces(F, e, t, R, p, w, vo, q, qd, f_ext, tau)
+    dynamics_pass(js, tree, bodies, q, qd, tau, f_ext, kin, work)
     qdd = work[7]
     for i in range(out.shape[0]):
         out[i] = qdd[i]
 
 
 @kernel
-def dca_steps(n, dt, use_rk4, js, tree, bodies, rotational, q, qd, kin, work, q_new, qd_new):
-    """Up to ``n`` steps of the DCA with the model's own forces (gravity, joint
-    springs and dampers) by semi-implicit Euler or (``use_rk4``) RK4, as
-    :func:`semi_implicit_euler` and :func:`rk4`, updating ``q``, ``qd`` in place.
-    Stops at a step whose state is not finite (status 1) or that turns a
-    rotational dof by more than half a turn (status 2), leaving that step's state
-    in ``q_new``, ``qd_new``. Returns ``(steps done, status)``."""
+def dca_steps(n, dt, step0, use_rk4, js, tree, bodies, rotational, F, q, qd, kin, work,
+              q_new, qd_new):
+    """Up to ``n`` steps of the DCA from step number ``step0`` (``t = step dt``),
+    with the model's own forces (gravity, joint springs and dampers) and the
+    built-in force elements of the tables ``F`` (:meth:`~vdad.forces.ForceTables.
+    arrays`, evaluation ``e = step * evaluations + k`` of the chunk), by
+    semi-implicit Euler or (``use_rk4``) RK4, as :func:`semi_implicit_euler` and
+    :func:`rk4`, updating ``q``, ``qd`` in place. Stops at a step whose state is not
+    finite (status 1) or that turns a rotational dof by more than half a turn
+    (status 2), leaving that step's state in ``q_new``, ``qd_new``. Returns
+    ``(steps done, status)``."""
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
-    nq, nv = q.shape[0], qd.shape[0]
-    no_tau, no_wrench = np.zeros(0), np.zeros((0, 6))
+    nq, nv, nb = q.shape[0], qd.shape[0], bodies[0].shape[0]
     kq = np.empty((4, nq))
     kv = np.empty((4, nv))
     qs, vs = np.empty(nq), np.empty(nv)
+    states, f_ext, tau = np.empty((2, nb, 3)), np.empty((nb, 6)), np.empty(nv)
     for step in range(n):
+        t = (step0 + step) * dt
         if not use_rk4:
-            _accel(js, tree, bodies, q, qd, no_tau, no_wrench, kin, work, kv[0])
+            accelerations(js, tree, bodies, F, step, t, q, qd, kin, work, states, f_ext, tau,
+                          kv[0])
             for i in range(nv):
                 qd_new[i] = qd[i] + dt * kv[0, i]
             configuration_step(stage_kind, stage_q, stage_v, q, qd_new, dt, q_new)
         else:
             for k in range(4):
-                h = 0.0 if k == 0 else (dt if k == 3 else 0.5 * dt)
+                h = 0.0 if k == 0 else (dt if k == 3 else dt / 2)
                 for i in range(nq):
-                    qs[i] = q[i] + (h * kq[k - 1, i] if k > 0 else 0.0)
+                    qs[i] = q[i] + h * kq[k - 1, i] if k > 0 else q[i]
                 for i in range(nv):
-                    vs[i] = qd[i] + (h * kv[k - 1, i] if k > 0 else 0.0)
+                    vs[i] = qd[i] + h * kv[k - 1, i] if k > 0 else qd[i]
                 configuration_rate_of(stage_kind, stage_q, stage_v, qs, vs, kq[k])
-                _accel(js, tree, bodies, qs, vs, no_tau, no_wrench, kin, work, kv[k])
+                accelerations(js, tree, bodies, F, 4 * step + k, t + h, qs, vs, kin, work,
+                              states, f_ext, tau, kv[k])
             for i in range(nq):
                 q_new[i] = q[i] + dt / 6 * (kq[0, i] + 2 * kq[1, i] + 2 * kq[2, i] + kq[3, i])
             for i in range(nv):
@@ -183,3 +205,12 @@ def dca_steps(n, dt, use_rk4, js, tree, bodies, rotational, q, qd, kin, work, q_
         for i in range(nv):
             qd[i] = qd_new[i]
     return n, 0
+
+
+def evaluation_times(step0, n, dt, use_rk4):
+    """The times (n E,) at which :func:`dca_steps` evaluates forces on ``n`` steps
+    from ``step0``: the step's start, and for RK4 also its middle (twice) and end."""
+    t = (step0 + np.arange(n)) * dt
+    if not use_rk4:
+        return t
+    return (t[:, None] + np.array([0.0, dt / 2, dt / 2, dt])).ravel()

@@ -26,7 +26,8 @@ from .checks import check_callable, check_count, check_real, check_vector, check
 from .dynamics import default_tree, forward_dynamics_unchecked
 from .environment import check_environment
 from .errors import InputError, SimulationError
-from .integrators import dca_steps, get_integrator, normalize_configuration
+from .forces import Forces, ForceTables
+from .integrators import dca_steps, evaluation_times, get_integrator, normalize_configuration
 from .kinematics import plan, world_poses
 from .model import body_indices, check_configuration, check_model
 
@@ -141,6 +142,24 @@ def method_options(model, method, q0, camera, options):
                                  *ADAPTIVE_OPTIONS) if k in used}
 
 
+def compiled_forces(model, controller, external):
+    """The :class:`~vdad.forces.ForceTables` that stand for ``controller`` and
+    ``external`` in compiled steps: none of either, or those of one
+    :class:`~vdad.forces.Forces` of vdad's own elements; else None (Python
+    callables run every step)."""
+    owner = getattr(external, "__self__", None) or getattr(controller, "__self__", None)
+    if controller is None and external is None:
+        owner = Forces(model, [])
+    if not isinstance(owner, Forces) or owner.model is not model:
+        return None
+    if external not in (None, owner.external) or controller not in (None, owner.controller):
+        return None
+    if (external is None) != (owner.external is None) or (
+            (controller is None) != (owner.controller is None)):
+        return None
+    return ForceTables.of(owner)
+
+
 class Simulator:
     """Step ``model`` from ``(q0, qd0)`` with time step ``dt``.
 
@@ -198,6 +217,7 @@ class Simulator:
         self.data = dca.make_data(self.tree)
         self.controller = check_callable("controller", controller, "(t, q, qd) -> tau (nv,)")
         self.external = check_callable("external", external, "(t, q, qd) -> f_ext (nb, 6)")
+        self._tables = (self, self, None)       # (controller, external, their ForceTables)
         q0 = model.q_neutral if q0 is None else q0
         self.q = normalize_configuration(model, check_configuration(model, "q0", q0))
         self.qd = np.zeros(model.nv) if qd0 is None else check_vector("qd0", qd0, model.nv).copy()
@@ -247,11 +267,15 @@ class Simulator:
 
     def step(self, n=1):
         """Advance ``n`` steps (a whole number >= 0); returns ``self``. With
-        ``"dca"`` and no ``controller`` or ``external``, the steps run in compiled
-        code (:func:`vdad.integrators.dca_steps`), with the same checks."""
+        ``"dca"`` and no Python forces (no ``controller`` or ``external``, or those
+        of a :class:`~vdad.forces.Forces` of vdad's own elements), the steps run in
+        compiled code (:func:`vdad.integrators.dca_steps`), with the same checks."""
         n = check_count("n", n, minimum=0)
-        if self.adaptive is None and self.controller is None and self.external is None:
+        if self.adaptive is None and self.force_tables() is not None:
             return self._compiled_steps(n)
+        return self._python_steps(n)
+
+    def _python_steps(self, n):
         for _ in range(n):
             try:
                 if self.adaptive is None:
@@ -269,18 +293,39 @@ class Simulator:
             self._advance(1)
         return self
 
+    CHUNK = 512          # compiled steps per call: bounds the time-dependent force tables
+
+    def force_tables(self):
+        """The :class:`~vdad.forces.ForceTables` of the current ``controller`` and
+        ``external`` (:func:`compiled_forces`; None: they run in Python)."""
+        controller, external, tables = self._tables
+        if controller != self.controller or external != self.external:
+            tables = compiled_forces(self.model, self.controller, self.external)
+            self._tables = (self.controller, self.external, tables)
+        return tables
+
     def _compiled_steps(self, n):
+        rk4 = self.integrator_name == "rk4"
         q_new, qd_new = np.empty_like(self.q), np.empty_like(self.qd)
         q, qd = self.q.copy(), self.qd.copy()
-        with compiling(dca_steps):
-            done, status = dca_steps(n, self.dt, self.integrator_name == "rk4",
-                                     plan(self.model).arrays, self.tree.arrays,
-                                     dca.body_arrays(self.model), self._rotational, q, qd,
-                                     self.data.kin.arrays, self.data.arrays, q_new, qd_new)
-        self.q, self.qd = q, qd
-        self._advance(done)
-        if status:
-            self._check_step(q_new, qd_new)
+        args = (plan(self.model).arrays, self.tree.arrays, dca.body_arrays(self.model),
+                self._rotational)
+        while n > 0:
+            m = min(n, self.CHUNK)
+            try:
+                F = self.force_tables().arrays(evaluation_times(self.step_count, m, self.dt,
+                                                                rk4))
+            except InputError:              # a moving anchor failed: find its step in Python
+                self.q, self.qd = q, qd
+                return self._python_steps(n)
+            with compiling(dca_steps):
+                done, status = dca_steps(m, self.dt, self.step_count, rk4, *args, F, q, qd,
+                                         self.data.kin.arrays, self.data.arrays, q_new, qd_new)
+            self.q, self.qd = q.copy(), qd.copy()
+            self._advance(done)
+            if status:
+                self._check_step(q_new, qd_new)
+            n -= m
         return self
 
     def _advance(self, steps):
