@@ -22,13 +22,15 @@ import threading
 import numpy as np
 from numba import njit
 
-#: decorator of the passes that Python calls (numba's on-disk cache) ...
-kernel = njit(cache=True)
+#: decorator of the passes that Python calls (numba's on-disk cache; a division
+#: by zero gives inf or NaN, which the callers' checks report, instead of raising
+#: inside a kernel) ...
+kernel = njit(cache=True, error_model="numpy")
 #: ... and of the per-node and per-joint kernels and the small products below,
 #: which numba inlines into the passes that call them: a call between compiled
 #: functions is not inlined by LLVM and costs ~10 ns per array argument, more
 #: than the arithmetic of a joint (docs/design.md, "The compiled core")
-inlined = njit(cache=True, inline="always")
+inlined = njit(cache=True, inline="always", error_model="numpy")
 
 NOTICE = ("vdad: compiling the numba kernels (once per installation, about a minute; "
           "later runs load them from numba's cache)")

@@ -443,8 +443,8 @@ class AdaptiveDynamics:
             q_full, qd_full = self._q.copy(), self._qd.copy()
             q_full[js.q_index], qd_full[js.v_index] = q_a, qd_a
             if self._controller is not None:
-                tau_full = check_vector("controller(t, q, qd)",
-                                        self._controller(t, q_full, qd_full), model.nv)
+                tau_full = np.array(check_vector("controller(t, q, qd)",
+                                                 self._controller(t, q_full, qd_full), model.nv))
                 tau = tau + tau_full[js.v_index]
                 self._tau_full = tau_full
             if self._external is not None:

@@ -124,6 +124,61 @@ class LeafPlan:
     pair_block: np.ndarray
 
 
+def _merge(model, order):
+    """The binary tree that merging the joints of ``model`` in ``order`` builds:
+    ``left``, ``right``, ``joint`` and ``height`` per internal node (numbered in
+    merge order after the bodies), ``ports`` per node."""
+    nb = model.nb
+    # cluster bookkeeping: union-find over bodies; ground leaves are separate
+    find_parent = list(range(nb))
+    node_of = list(range(nb))          # cluster root body -> node id
+    ports = [[(i, +1)] + [(int(c), -1) for c in model.children[i]] for i in range(nb)]
+    height = [0] * nb
+    left, right, joint = [], [], []
+    for j in order:
+        p = model.parent[j]
+        if p < 0:
+            a_node, a_ports, a_h = GROUND, [(j, -1)], 0
+        else:
+            ra = _find(find_parent, p)
+            a_node, a_ports, a_h = node_of[ra], ports[node_of[ra]], height[node_of[ra]]
+        rb = _find(find_parent, j)
+        b_node = node_of[rb]
+        node = nb + len(joint)
+        left.append(a_node)
+        right.append(b_node)
+        joint.append(j)
+        ports.append([pt for pt in a_ports if pt != (j, -1)]
+                     + [pt for pt in ports[b_node] if pt != (j, +1)])
+        height.append(1 + max(a_h, height[b_node]))
+        if p < 0:
+            node_of[rb] = node
+        else:
+            find_parent[rb] = ra
+            node_of[ra] = node
+    return left, right, joint, height, ports
+
+
+def depth_first(nb, left, right):
+    """Every node id (bodies and internal nodes ``nb + i``) in depth-first
+    post-order: ``A``'s subtree, ``B``'s, then the node; roots in merge order."""
+    referenced = set(left) | set(right)
+    out = []
+    for root in range(nb, nb + len(left)):
+        if root in referenced:
+            continue
+        stack = [(root, False)]
+        while stack:
+            node, done = stack.pop()
+            if node == GROUND:
+                continue
+            if node < nb or done:
+                out.append(node)
+                continue
+            stack += [(node, True), (right[node - nb], False), (left[node - nb], False)]
+    return out
+
+
 class AssemblyTree:
     """An immutable binary assembly tree of ``model``.
 
@@ -135,14 +190,17 @@ class AssemblyTree:
     ``ports`` (per node), ``n_blocks``, ``n_slots``, ``n_nodes`` (bodies and
     internal nodes), ``up`` (parent node of every node, -1 at the roots),
     ``top`` (top body of every node: the body whose parent is outside it; -1 when
-    the node holds a ground leaf), ``n_ports`` (per node), ``block_base``,
+    the node holds a ground leaf), ``n_ports`` (per node; ``max_ports``), ``block_base``,
     ``slot_base`` (per node: its first block and slot), ``slot_joint``,
     ``slot_side`` (per slot: its port), ``port_A``, ``port_B`` (per internal
     node: where its joint's port is in A's and B's ports), ``slot_child``,
     ``slot_index``, ``slot_sign`` (per slot of an internal node: the child the
     port comes from, its index there and ``s_a`` of (T11)), :attr:`arrays`
-    (all of these for the compiled passes). Internal nodes are numbered children
-    first: ascending order is a post-order, descending a pre-order.
+    (all of these for the compiled passes), ``post`` (every node, bodies too, in
+    depth-first post-order). Internal nodes are numbered in depth-first
+    post-order, whatever the merge order given (it only fixes the tree), and the
+    blocks of every node are stored in ``post`` order: a subtree's data lie
+    together, so the passes work in cache (``docs/design.md``).
     """
 
     def __init__(self, model, order):
@@ -157,33 +215,10 @@ class AssemblyTree:
             raise InputError("an assembly order must name every joint exactly once; "
                              f"missing or repeated: {[model.joint_names[j] for j in missing][:5]}")
         self.model = model
-        # cluster bookkeeping: union-find over bodies; ground leaves are separate
-        find_parent = list(range(nb))
-        node_of = list(range(nb))          # cluster root body -> node id
-        ports = [[(i, +1)] + [(int(c), -1) for c in model.children[i]] for i in range(nb)]
-        height = [0] * nb
-        left, right, joint = [], [], []
-        for j in order:
-            p = model.parent[j]
-            if p < 0:
-                a_node, a_ports, a_h = GROUND, [(j, -1)], 0
-            else:
-                ra = _find(find_parent, p)
-                a_node, a_ports, a_h = node_of[ra], ports[node_of[ra]], height[node_of[ra]]
-            rb = _find(find_parent, j)
-            b_node = node_of[rb]
-            node = nb + len(joint)
-            left.append(a_node)
-            right.append(b_node)
-            joint.append(j)
-            ports.append([pt for pt in a_ports if pt != (j, -1)]
-                         + [pt for pt in ports[b_node] if pt != (j, +1)])
-            height.append(1 + max(a_h, height[b_node]))
-            if p < 0:
-                node_of[rb] = node
-            else:
-                find_parent[rb] = ra
-                node_of[ra] = node
+        left, right, joint, height, ports = _merge(model, order)
+        post = [joint[n - nb] for n in depth_first(nb, left, right) if n >= nb]
+        if post != joint:                   # number the nodes depth first (docstring)
+            left, right, joint, height, ports = _merge(model, post)
         self.left = np.array(left, int)
         self.right = np.array(right, int)
         self.joint = np.array(joint, int)
@@ -269,7 +304,8 @@ class AssemblyTree:
         block_base = np.zeros(n_nodes, int)
         slot_base = np.zeros(n_nodes, int)
         nblk, nslt = 2, 2
-        for n in range(n_nodes):
+        self.post = np.array(depth_first(nb, self.left, self.right), np.int64)
+        for n in self.post:                 # stored in the order the passes visit them
             P = len(self.ports[n])
             block_base[n], slot_base[n] = nblk, nslt
             nblk += P * P
@@ -277,6 +313,7 @@ class AssemblyTree:
         self.n_blocks, self.n_slots = nblk, nslt
         self.block_base, self.slot_base = block_base, slot_base
         self.n_ports = np.array([len(p) for p in self.ports], int)
+        self.max_ports = int(self.n_ports.max())
         self.slot_joint = np.full(nslt, nj)      # (joint, side) of every port slot
         self.slot_side = np.zeros(nslt, int)
         for n in range(n_nodes):
@@ -390,11 +427,11 @@ class AssemblyTree:
         """The arrays the compiled DCA passes (:mod:`vdad.dca`) read, as one tuple:
         ``left, right, joint, port_A, port_B`` per internal node, ``n_ports,
         block_base, slot_base`` per node, ``slot_joint, slot_side, slot_child,
-        slot_index, slot_sign`` per slot (int64)."""
+        slot_index, slot_sign`` per slot, ``post`` (int64)."""
         return tuple(np.ascontiguousarray(a, np.int64) for a in (
             self.left, self.right, self.joint, self.port_A, self.port_B, self.n_ports,
             self.block_base, self.slot_base, self.slot_joint, self.slot_side, self.slot_child,
-            self.slot_index, self.slot_sign))
+            self.slot_index, self.slot_sign, self.post))
 
     def __repr__(self):
         return (f"AssemblyTree(bodies={self.model.nb}, depth={self.depth}, "

@@ -66,10 +66,20 @@ def check_finite(name, value, error=InputError):
     return a
 
 
+def all_finite(a):
+    """Whether every entry of the float array ``a`` is finite: its sum is (one pass,
+    no temporary), unless the sum overflowed, then entry by entry."""
+    s = a.sum()
+    return bool(s - s == 0.0) or bool(np.isfinite(a).all())
+
+
 def check_vector(name, x, n, allow_none=False, error=InputError):
-    """``x`` as a finite float vector of length ``n``, or a clear error."""
+    """``x`` as a finite float vector of length ``n``, or a clear error (a float64
+    array of that shape is returned as it is, without a copy)."""
     if x is None and allow_none:
         return None
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,) and all_finite(x):
+        return x
     a = real_array(name, x, error)
     if a.shape != (n,):
         raise error(f"{name} must have shape ({n},), got {a.shape}")

@@ -57,8 +57,8 @@ class DCAData:
 
     kin: the :class:`~vdad.kinematics.Kinematics` of the state.
     Phi [n_blocks, 6, 6], b [n_slots, 6]: block stores of the tree.
-    Y, Wm [nb, 6, 6], beta, gamma [nb, 6]: per joint, the intermediates of its
-    node kept for the top-down pass. f_J [nb, 6]: joint wrenches; qdd [nv]:
+    Y, Wm [nb, 6, 6], beta, gamma [nb, 6]: per internal node, the intermediates
+    kept for the top-down pass. f_J [nb, 6]: joint wrenches; qdd [nv]:
     joint accelerations; tau [nv]: the joint forces of the last evaluation
     (springs, dampers and actuation). X, GY [max ports, 6, 6], tmp [8, 6, 6]:
     scratch.
@@ -87,7 +87,7 @@ class DCAData:
 def make_data(tree) -> DCAData:
     """Allocate the work arrays for ``tree``."""
     model = tree.model
-    nb, P = model.nb, int(tree.n_ports.max())
+    nb, P = model.nb, tree.max_ports
     z = np.zeros
     return DCAData(Kinematics.empty(plan(model)), z((tree.n_blocks, 6, 6)), z((tree.n_slots, 6)),
                    z((nb, 6, 6)), z((nb, 6, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(model.nv),
@@ -103,7 +103,7 @@ def check_data(tree, data):
     model = tree.model
     if (len(data.Phi) != tree.n_blocks or len(data.b) != tree.n_slots
             or len(data.f_J) != model.nb or len(data.qdd) != model.nv
-            or len(data.X) < tree.n_ports.max()):
+            or len(data.X) < tree.max_ports):
         raise InputError(f"data was allocated for another assembly tree than this one (of "
                          f"model {model.name!r}); allocate it with make_data(tree)")
     return data
@@ -163,7 +163,7 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp):
     port is the body frame; the port of a child joint is that joint's child frame.
     ``tmp`` (>= 3, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
-     slot_side, slot_child, slot_index, slot_sign) = tree
+     slot_side, slot_child, slot_index, slot_sign, post) = tree
     mass, com, inertia, Iinv, gravity = bodies[0], bodies[1], bodies[2], bodies[3], bodies[4]
     R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
     P, s0, k0 = n_ports[i], slot_base[i], block_base[i]
@@ -179,10 +179,16 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp):
             port_transform(eye, zero, c, X[h])
         else:
             port_transform(R_rel[j], p_rel[j], c, X[h])
-    for h in range(P):                                           # (T2)
+    for h in range(P):                                           # (T2), Phi_kh = Phi_hk^T
         times_inverse_inertia(X[h], Ii, m, Z)
-        for k in range(P):
-            mmt6(Z, X[k], Phi[k0 + h * P + k])
+        for k in range(h, P):
+            B = Phi[k0 + h * P + k]
+            mmt6(Z, X[k], B)
+            if k > h:
+                Bt = Phi[k0 + k * P + h]
+                for r in range(6):
+                    for s in range(6):
+                        Bt[s, r] = B[r, s]
     # (T3): f - bias at the com, body axes: (n - w × I w; m R^T g + f - m w × v_c)
     w, Rb = v[i, :3], R[i]
     vc0 = v[i, 3] + w[1] * c[2] - w[2] * c[1]
@@ -320,16 +326,16 @@ def joint_inputs(Wm, Y, W, d, tau, Ia, gamma, beta, tmp):
 def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamma, GY, tmp):
     """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
     ``B`` joined by joint ``j``, theory (T6)-(T12). Keeps ``Y``, ``W_m``,
-    ``beta``, ``gamma`` of ``j`` for :func:`solve_node`. ``GY`` (max ports, 6, 6),
+    ``beta``, ``gamma`` of the node (row ``i``) for :func:`solve_node`. ``GY`` (max ports, 6, 6),
     ``tmp`` (>= 7, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
-     slot_side, slot_child, slot_index, slot_sign) = tree
+     slot_side, slot_child, slot_index, slot_sign, post) = tree
     v_start, nv_joint = js[6], js[7]
     T, W, c_J = kin[3], kin[4], kin[8]
     C, A, B, j = nb + i, left[i], right[i], joint[i]
     jA, jB = port_A[i], port_B[i]
     d = nv_joint[j]
-    Wj, Yj, Wmj, bj, gj = W[j], Y[j], Wm[j], beta[j], gamma[j]
+    Wj, Yj, Wmj, bj, gj = W[j], Y[i], Wm[i], beta[i], gamma[i]
     kB, sB = block_base[B] + jB * n_ports[B] + jB, slot_base[B] + jB
     for r in range(6):                                          # (T6), (T8)
         gj[r] = b[sB, r] - c_J[j, r]
@@ -413,12 +419,12 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
         k = column_block(s0 + a, left[i], port_A[i], port_B[i], tree)
         mtv6_add(Phi[k], f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a], u)
     fJ = f_J[j]
-    mv6(Y[j], u, t)                                              # (T10)
+    mv6(Y[i], u, t)                                              # (T10)
     for r in range(6):
-        fJ[r] = beta[j, r] - t[r]
-    mv6(Wm[j], fJ, t)                                            # (T13)
+        fJ[r] = beta[i, r] - t[r]
+    mv6(Wm[i], fJ, t)                                            # (T13)
     for r in range(6):
-        t[r] += u[r] + gamma[j, r]
+        t[r] += u[r] + gamma[i, r]
     Wj = W[j]
     for k in range(nv_joint[j]):
         acc = 0.0
@@ -430,23 +436,26 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
 @kernel
 def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     """The DCA on kinematics ``kin`` already computed for ``(q, qd)``: joint forces
-    ``tau = tau_in - D qd - K d``, the leaves, the bottom-up pass (internal nodes
-    ascending: children first) and the top-down pass (descending); ``qdd`` ends in
-    ``work``."""
+    ``tau = tau_in - D qd - K d``, the leaves and the bottom-up pass node by node
+    in the tree's depth-first post-order, then the top-down pass in the reverse
+    order; ``qdd`` ends in ``work``."""
     Phi, b, Y, Wm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
     passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
                         q, qd, tau)
     for r in range(tau_in.shape[0]):
         tau[r] += tau_in[r]
-    nb = bodies[0].shape[0]
-    n_int = tree[2].shape[0]
-    for i in range(nb):
-        leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp)
-    for i in range(n_int):
-        assemble_node(i, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, Wm, beta, gamma, GY,
-                      tmp)
-    for i in range(n_int - 1, -1, -1):
-        solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp)
+    nb, post = bodies[0].shape[0], tree[13]
+    for k in range(post.shape[0]):                  # depth first: a subtree stays in cache
+        n = post[k]
+        if n < nb:
+            leaf(n, tree, bodies, f_ext, kin, Phi, b, X, tmp)
+        else:
+            assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, Wm, beta,
+                          gamma, GY, tmp)
+    for k in range(post.shape[0] - 1, -1, -1):
+        n = post[k]
+        if n >= nb:
+            solve_node(n - nb, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp)
 
 
 @kernel

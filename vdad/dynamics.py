@@ -15,7 +15,7 @@ from . import dca
 from . import joints as J
 from ._linalg import as_input, compiling
 from .assembly import AssemblyTree, check_tree
-from .checks import check_vector, check_wrenches
+from .checks import all_finite, check_vector, check_wrenches
 from .errors import InputError
 from .kinematics import JointSet, as_joint_set, plan
 from .model import check_configuration, check_model
@@ -87,7 +87,7 @@ def check_overflow(model, qdd, **inputs):
     """``qdd`` if it is finite; else the InputError of accelerations that came out
     non-finite from finite ``inputs`` (name: array or None): they overflowed double
     precision. Names the first joint at fault and the size of the inputs."""
-    if np.all(np.isfinite(qdd)):
+    if all_finite(qdd):
         return qdd
     bad = model.dof_joint[np.flatnonzero(~np.isfinite(qdd))[0]]
     sizes = ", ".join(f"|{k}| up to {np.abs(v).max():.3g}" for k, v in inputs.items()

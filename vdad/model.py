@@ -348,7 +348,8 @@ class Model:
     ``inertia`` [nb, 3, 3], ``placement_R`` [nj, 3, 3], ``placement_p`` [nj, 3],
     ``q_start``/``nq_joint``/``v_start``/``nv_joint`` [nj], per-stage arrays
     ``stage_*`` [ns], ``q_neutral`` [nq], ``q_spring`` [nq], ``armature`` [nv]
-    (rotor inertia per dof, ``docs/joints.md``).
+    (rotor inertia per dof, ``docs/joints.md``), ``ball_q`` (the first ``q`` index
+    of every ball stage's quaternion).
     """
 
     def __init__(self, bodies, joints, gravity=(0.0, 0.0, -9.81), q_spring=None, name="model"):
@@ -442,6 +443,7 @@ class Model:
         self.stage_v = _readonly(cols[9], int)
         self.stage_armature = _readonly(cols[10])
         self.n_stages_joint = _readonly(np.bincount(self.stage_joint, minlength=self.nb), int)
+        self.ball_q = _readonly(self.stage_q[self.stage_kind == J.BALL], int)
 
         q0 = np.zeros(nq)
         for s in range(self.ns):
@@ -529,7 +531,7 @@ def check_configuration(model, name, q, error=InputError):
     """``q`` as a finite configuration vector (nq,) of ``model`` whose quaternions
     (ball stages) can be normalised, or an error naming ``name`` and the joint."""
     q = check_vector(name, q, model.nq, error=error)
-    balls = model.stage_q[model.stage_kind == J.BALL]              # first entry of each
+    balls = model.ball_q                                            # first entry of each
     if len(balls):
         norms = np.linalg.norm(q[balls[:, None] + np.arange(4)], axis=1)
         zero = np.flatnonzero(~(norms > 1e-150))
