@@ -45,10 +45,13 @@ SCENES = [
 
 def run(scene, method, threshold, steps):
     """ms per step, mean active joints and ms of visibility per step of one run, and
-    the error message if it diverged (the means are then over the steps done)."""
+    the error message if it diverged (the means are then over the steps done). A
+    throwaway step first loads the compiled kernels (start-up is timed by
+    bench_dynamics.py)."""
     options = {} if method == "dca" else {"threshold": threshold}
     if method == "view-oq":
         options["counting"] = "merged"
+    scene.simulator(method=method, **options).step(1)   # numba loads its kernels once
     sim = scene.simulator(method=method, **options)
     t0 = time.perf_counter()
     try:

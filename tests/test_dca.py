@@ -29,6 +29,30 @@ def test_dca_equals_aba_and_crba_on_random_forests(seed):
     assert relative_error(qdd, reference.crba_forward_dynamics(model, q, qd, tau, f_ext)) < tol
 
 
+def test_large_forests_run_their_trees_in_parallel_with_the_same_result():
+    """A forest of at least dca.PARALLEL_BODIES bodies runs each root's subtree on
+    numba's threads (dca.forest_passes): the same accelerations as ABA, and, to the
+    last bit, as the serial passes of each tree alone."""
+    model = with_armature(random_tree(7, n=dca.PARALLEL_BODIES + 40, roots=24,
+                                      composite=True), 7)
+    q, qd, tau, f_ext = random_state(model, 7)
+    tree = AssemblyTree.balanced(model)
+    assert len(tree.segments) - 1 == 24 and model.nb >= dca.PARALLEL_BODIES
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext, tree=tree)
+    assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
+    serial = vdad.dca.make_data(tree)
+    passes = (vdad.kinematics.plan(model).arrays, tree.arrays, dca.body_arrays(model))
+    dca.kinematics_pass(passes[0], q, qd, True, *serial.kin.arrays)
+    Phi, b, Y, Wm, beta, gamma, f_J, qdd_s, tau_s, X, GY, tmp = serial.arrays
+    dca.passive_forces_pass(*passes[2][5:11], q, qd, tau_s)
+    tau_s += tau
+    for r in range(len(tree.segments) - 1):
+        dca.subtree_passes(tree.segments[r], tree.segments[r + 1], model.nb, *passes[:2],
+                           passes[2], f_ext, serial.kin.arrays, tau_s, Phi, b, Y, Wm, beta,
+                           gamma, f_J, qdd_s, X, GY, tmp)
+    np.testing.assert_array_equal(qdd, qdd_s)
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_rnea_inverts_the_dca(seed):
     model = random_tree(seed, n=10, roots=2, composite=True)

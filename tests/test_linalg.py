@@ -159,3 +159,14 @@ def test_read_only_install_compiles_once_then_loads_from_the_user_cache(tmp_path
                                    atol=1e-12 * np.abs(expected).max())
     assert all(o["where"].startswith(str(site)) for o in out)
     assert out[1]["first_call_s"] < 1.0, f"loading the cached kernels took {out[1]}"
+
+
+def test_kernel_caches_carry_the_stamp_of_the_sources():
+    """numba keys a cache on its function's own file only; vdad stamps its cache
+    folder with a hash of all the modules that define kernels (a kernel inlines
+    others), and clears the folder when the stamp is missing, at import."""
+    folder = ROOT / "vdad" / "__pycache__"
+    if not os.access(folder, os.W_OK):
+        pytest.skip("the package folder is read-only here")
+    assert (folder / f"vdad-sources-{L.source_stamp()}.stamp").exists()
+    assert len(list(folder.glob("vdad-sources-*.stamp"))) == 1

@@ -16,23 +16,27 @@ one-line notice of a first compilation.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import sys
 import threading
+from pathlib import Path
 
 import numpy as np
-from numba import njit
+from numba import config, njit
 
 #: decorator of the passes that Python calls (numba's on-disk cache; a division
 #: by zero gives inf or NaN, which the callers' checks report, instead of raising
 #: inside a kernel) ...
 kernel = njit(cache=True, error_model="numpy")
+#: ... of passes over independent subtrees that numba runs on its threads ...
+parallel_kernel = njit(cache=True, error_model="numpy", parallel=True)
 #: ... and of the per-node and per-joint kernels and the small products below,
 #: which numba inlines into the passes that call them: a call between compiled
 #: functions is not inlined by LLVM and costs ~10 ns per array argument, more
 #: than the arithmetic of a joint (docs/design.md, "The compiled core")
 inlined = njit(cache=True, inline="always", error_model="numpy")
 
-NOTICE = ("vdad: compiling the numba kernels (once per installation, about a minute; "
+NOTICE = ("vdad: compiling the numba kernels (once per installation, a few minutes; "
           "later runs load them from numba's cache)")
 _noticed = threading.Event()
 
@@ -66,6 +70,47 @@ def compiling(dispatcher):
 
 _called = set()
 _NOTHING = contextlib.nullcontext()
+
+
+def source_stamp():
+    """A hash of the source of the ``vdad`` modules that define compiled code."""
+    sources = [p.read_bytes() for p in sorted(Path(__file__).resolve().parent.glob("*.py"))]
+    return hashlib.sha1(b"".join(s for s in sources if b"@kernel" in s or b"@inlined" in s
+                                 or b"@parallel_kernel" in s)).hexdigest()[:16]
+
+
+def clear_stale_caches():
+    """``docs/design.md``, start-up: numba keys a kernel's cache on its own file,
+    but every pass inlines kernels of other modules, and would load stale machine
+    code after they change. So vdad's caches carry one stamp, the hash of all its
+    sources (``vdad-sources-<hash>.stamp`` beside them): in each of numba's cache
+    folders for the package (``NUMBA_CACHE_DIR``, the package's ``__pycache__``,
+    the user's cache), a missing stamp deletes the cached kernels there and writes
+    it. Runs once, at import, before any kernel is loaded."""
+    from numba.core import caching
+
+    stamp_name = f"vdad-sources-{source_stamp()}.stamp"
+    source = str(Path(__file__).resolve())
+    locators = [caching.InTreeCacheLocator, caching.UserWideCacheLocator]
+    if config.CACHE_DIR:
+        locators.insert(0, caching.UserProvidedCacheLocator)
+    stamped = False                 # the first writable folder is the one numba uses
+    for locator in locators:
+        try:
+            folder = Path(locator(_notice, source).get_cache_path())
+            if (folder / stamp_name).exists():
+                stamped = True
+                continue
+            if folder.is_dir():
+                for old in [*folder.glob("*.nbi"), *folder.glob("*.nbc"),
+                            *folder.glob("vdad-sources-*.stamp")]:
+                    old.unlink()
+            if not stamped:
+                folder.mkdir(parents=True, exist_ok=True)
+                (folder / stamp_name).touch()
+                stamped = True
+        except (OSError, AttributeError, TypeError):
+            continue                    # not writable, or a numba without that locator
 
 
 def as_input(a):
@@ -409,3 +454,6 @@ def complement(S, d, T, W, work):
     for i in range(6):
         for j in range(d):
             W[i, j] = Z[j, i]
+
+
+clear_stale_caches()

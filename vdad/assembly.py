@@ -197,10 +197,12 @@ class AssemblyTree:
     ``slot_index``, ``slot_sign`` (per slot of an internal node: the child the
     port comes from, its index there and ``s_a`` of (T11)), :attr:`arrays`
     (all of these for the compiled passes), ``post`` (every node, bodies too, in
-    depth-first post-order). Internal nodes are numbered in depth-first
-    post-order, whatever the merge order given (it only fixes the tree), and the
-    blocks of every node are stored in ``post`` order: a subtree's data lie
-    together, so the passes work in cache (``docs/design.md``).
+    depth-first post-order), ``segments`` (where each root's subtree starts in
+    ``post``, then its length: independent subtrees, one per root). Internal
+    nodes are numbered in depth-first post-order, whatever the merge order given
+    (it only fixes the tree), and the blocks of every node are stored in ``post``
+    order: a subtree's data lie together, so the passes work in cache
+    (``docs/design.md``).
     """
 
     def __init__(self, model, order):
@@ -305,6 +307,8 @@ class AssemblyTree:
         slot_base = np.zeros(n_nodes, int)
         nblk, nslt = 2, 2
         self.post = np.array(depth_first(nb, self.left, self.right), np.int64)
+        ends = np.flatnonzero(self.up[self.post] < 0) + 1       # after each root
+        self.segments = np.concatenate([[0], ends]).astype(np.int64)
         for n in self.post:                 # stored in the order the passes visit them
             P = len(self.ports[n])
             block_base[n], slot_base[n] = nblk, nslt
@@ -427,11 +431,11 @@ class AssemblyTree:
         """The arrays the compiled DCA passes (:mod:`vdad.dca`) read, as one tuple:
         ``left, right, joint, port_A, port_B`` per internal node, ``n_ports,
         block_base, slot_base`` per node, ``slot_joint, slot_side, slot_child,
-        slot_index, slot_sign`` per slot, ``post`` (int64)."""
+        slot_index, slot_sign`` per slot, ``post``, ``segments`` (int64)."""
         return tuple(np.ascontiguousarray(a, np.int64) for a in (
             self.left, self.right, self.joint, self.port_A, self.port_B, self.n_ports,
             self.block_base, self.slot_base, self.slot_joint, self.slot_side, self.slot_child,
-            self.slot_index, self.slot_sign, self.post))
+            self.slot_index, self.slot_sign, self.post, self.segments))
 
     def __repr__(self):
         return (f"AssemblyTree(bodies={self.model.nb}, depth={self.depth}, "

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numba import prange
 
 from ._linalg import (
     cholesky,
@@ -40,6 +41,7 @@ from ._linalg import (
     mtm6,
     mtv6_add,
     mv6,
+    parallel_kernel,
     port_transform,
     quaternion_log,
     solve_general,
@@ -163,7 +165,7 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp):
     port is the body frame; the port of a child joint is that joint's child frame.
     ``tmp`` (>= 3, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
-     slot_side, slot_child, slot_index, slot_sign, post) = tree
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     mass, com, inertia, Iinv, gravity = bodies[0], bodies[1], bodies[2], bodies[3], bodies[4]
     R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
     P, s0, k0 = n_ports[i], slot_base[i], block_base[i]
@@ -329,7 +331,7 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamm
     ``beta``, ``gamma`` of the node (row ``i``) for :func:`solve_node`. ``GY`` (max ports, 6, 6),
     ``tmp`` (>= 7, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
-     slot_side, slot_child, slot_index, slot_sign, post) = tree
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint = js[6], js[7]
     T, W, c_J = kin[3], kin[4], kin[8]
     C, A, B, j = nb + i, left[i], right[i], joint[i]
@@ -434,28 +436,61 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
 
 
 @kernel
-def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
-    """The DCA on kinematics ``kin`` already computed for ``(q, qd)``: joint forces
-    ``tau = tau_in - D qd - K d``, the leaves and the bottom-up pass node by node
-    in the tree's depth-first post-order, then the top-down pass in the reverse
-    order; ``qdd`` ends in ``work``."""
-    Phi, b, Y, Wm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
-    passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
-                        q, qd, tau)
-    for r in range(tau_in.shape[0]):
-        tau[r] += tau_in[r]
-    nb, post = bodies[0].shape[0], tree[13]
-    for k in range(post.shape[0]):                  # depth first: a subtree stays in cache
+def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma,
+                   f_J, qdd, X, GY, tmp):
+    """The DCA of one root's subtree, ``post[lo:hi]``: the leaves and the
+    bottom-up pass node by node in depth-first post-order, then the top-down pass
+    in the reverse order (its root has no ports: subtrees are independent)."""
+    post = tree[13]
+    for k in range(lo, hi):                     # depth first: a subtree stays in cache
         n = post[k]
         if n < nb:
             leaf(n, tree, bodies, f_ext, kin, Phi, b, X, tmp)
         else:
             assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, Wm, beta,
                           gamma, GY, tmp)
-    for k in range(post.shape[0] - 1, -1, -1):
+    for k in range(hi - 1, lo - 1, -1):
         n = post[k]
         if n >= nb:
             solve_node(n - nb, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp)
+
+
+#: forests of at least this many bodies run their trees' subtrees in parallel
+PARALLEL_BODIES = 256
+
+
+@parallel_kernel
+def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma, f_J, qdd,
+                  P):
+    """:func:`subtree_passes` of every root's subtree of a forest, in parallel
+    (numba threads): each writes only its own nodes' blocks, joints and dofs, and
+    takes its own scratch (``P``: the most ports of a node)."""
+    nb, segments = bodies[0].shape[0], tree[14]
+    for r in prange(segments.shape[0] - 1):
+        X, GY, tmp = np.empty((P, 6, 6)), np.empty((P, 6, 6)), np.empty((8, 6, 6))
+        subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
+                       Phi, b, Y, Wm, beta, gamma, f_J, qdd, X, GY, tmp)
+
+
+@kernel
+def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
+    """The DCA on kinematics ``kin`` already computed for ``(q, qd)``: joint forces
+    ``tau = tau_in - D qd - K d``, then :func:`subtree_passes` of each root's
+    subtree (in parallel for forests of :data:`PARALLEL_BODIES` bodies or more);
+    ``qdd`` ends in ``work``."""
+    Phi, b, Y, Wm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
+                        q, qd, tau)
+    for r in range(tau_in.shape[0]):
+        tau[r] += tau_in[r]
+    nb, segments = bodies[0].shape[0], tree[14]
+    if segments.shape[0] > 2 and nb >= PARALLEL_BODIES:
+        forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma, f_J, qdd,
+                      X.shape[0])
+        return
+    for r in range(segments.shape[0] - 1):
+        subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
+                       Phi, b, Y, Wm, beta, gamma, f_J, qdd, X, GY, tmp)
 
 
 @kernel

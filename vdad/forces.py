@@ -4,9 +4,14 @@ Springs and virtual strings from body points to world points that may move (the
 puppet's control stick, the hanging dogs' anchors), intermittent random torques
 from a seeded generator (the hanging dogs), penalty contact with a floor and
 Coulomb-style friction (the falling character), and joint limits. Each element
-is small and vectorised over its bodies; :class:`Forces` sums them into the
+kind is one compiled kernel over its bodies (:func:`spring_wrenches`,
+:func:`drag_wrenches`, :func:`floor_wrenches`, :func:`pulse_torques`,
+:func:`limit_torques`); :class:`Forces` sums the elements into the
 ``external(t, q, qd) -> f_ext`` (nb, 6) and ``controller(t, q, qd) -> tau`` (nv,)
-callables of :class:`~vdad.Simulator`. External wrenches follow
+callables of :class:`~vdad.Simulator`, and :class:`ForceTables` hands the same
+elements to the compiled step loop (:func:`apply_forces`), which calls the same
+kernels: a simulator of vdad's own forces never returns to Python between steps.
+External wrenches follow
 ``docs/conventions.md``: torque about each body's centre of mass, then force,
 world axes. With the adaptive methods they enter through the force-update region
 (:meth:`~vdad.hybrid.RigidGroups.update_forces`).
@@ -261,6 +266,20 @@ class Springs:
         h = 1e-4
         va = (np.asarray(self.anchors(t + h), float) - np.asarray(self.anchors(t - h), float))
         return a, va / (2 * h)
+
+    def anchor_states(self, times):
+        """Anchor positions and velocities (E, k, 3) at each of ``times`` (E,), as
+        :meth:`anchor_state`; in one call each when the anchors callable has a
+        ``many(times) -> (E, k, 3)`` method (e.g. the puppet's stick path)."""
+        times = np.asarray(times, float)
+        many = getattr(self.anchors, "many", None) if self.moving else None
+        if many is None:
+            states = [self.anchor_state(t) for t in times]
+            return np.array([a for a, _ in states]), np.array([v for _, v in states])
+        k, h = len(self.bodies), 1e-4
+        a = check_real("anchors(t)", many(times), (len(times), k, 3))
+        va = (np.asarray(many(times + h), float) - np.asarray(many(times - h), float)) / (2 * h)
+        return a, va
 
     def lengths(self, t, states):
         """Spring lengths (k,) for body ``states`` (:class:`BodyStates` output)."""
@@ -741,8 +760,7 @@ class ForceTables:
         for e in self.springs:
             k = len(e.bodies)
             if e.moving:
-                for r, t in enumerate(times):
-                    anchors[r, at:at + k], velocity[r, at:at + k] = e.anchor_state(t)
+                anchors[:, at:at + k], velocity[:, at:at + k] = e.anchor_states(times)
             else:
                 anchors[:, at:at + k] = e.anchors
             at += k

@@ -114,20 +114,27 @@ class StickPath:
             object.__setattr__(self, name, value)
 
     def pose(self, t):
-        """Stick position (3,) and rotation (3, 3) at time ``t``."""
+        """Stick positions (..., 3) and rotations (..., 3, 3) at times ``t`` (a
+        number or an array)."""
+        t = np.asarray(t, float)
         times, pos = np.asarray(self.times, float), np.asarray(self.positions, float)
-        i = int(np.clip(np.searchsorted(times, t, "right") - 1, 0, len(times) - 1))
-        if i + 1 < len(times):
-            s = np.clip((t - times[i]) / (times[i + 1] - times[i]), 0.0, 1.0)
-            p = pos[i] + (3 * s**2 - 2 * s**3) * (pos[i + 1] - pos[i])
-        else:
-            p = pos[i]
+        i = np.clip(np.searchsorted(times, t, "right") - 1, 0, len(times) - 1)
+        j = np.minimum(i + 1, len(times) - 1)              # held after the last key
+        span = np.where(j > i, times[j] - times[i], 1.0)
+        s = np.where(j > i, np.clip((t - times[i]) / span, 0.0, 1.0), 0.0)
+        p = pos[i] + (3 * s**2 - 2 * s**3)[..., None] * (pos[j] - pos[i])
         roll = self.rock * np.sin(2 * np.pi * self.rock_hz * t)
-        return p, quat_to_rot(quat_exp(np.array([roll, 0.0, 0.0])))
+        axis = np.stack([roll, np.zeros_like(roll), np.zeros_like(roll)], axis=-1)
+        return p, quat_to_rot(quat_exp(axis))
+
+    def many(self, t):
+        """The anchors (E, 6, 3) at the times ``t`` (E,), in one evaluation:
+        :class:`~vdad.forces.Springs` tabulates a chunk of steps with it."""
+        p, R = self.pose(np.asarray(t, float).reshape(-1))
+        return p[:, None, :] + np.einsum("kj,eij->eki", STICK_POINTS, R)
 
     def __call__(self, t):
-        p, R = self.pose(t)
-        return p + STICK_POINTS @ R.T
+        return self.many([t])[0]
 
 
 def default_stick_path(height=1.02, open_x=-0.05, hidden_x=0.7, drop=0.55):
