@@ -5,9 +5,11 @@ two sub-assemblies across a joint (T6)-(T12), with the joint's armature (A1)-(A2
 of ``docs/joints.md``, and :func:`solve_node` finds the joint's wrench and
 accelerations (T10), (T13). :func:`dca_pass` is the whole evaluation: the
 kinematics (:func:`vdad.kinematics.kinematics_pass`), the joint springs and
-dampers, every leaf, the internal nodes in post-order (children first) and again
-in pre-order. All of it is compiled (numba, ``cache=True``); the passes are plain
-loops over nodes, so a node costs the same wherever it sits in the tree.
+dampers, then per root's subtree (:func:`subtree_passes`; on numba's threads for
+large forests) every leaf and internal node in depth-first post-order, and the
+top-down pass in the reverse order. All of it is compiled (numba,
+``cache=True``); the passes are plain loops over nodes, so a node costs the same
+wherever it sits in the tree.
 
 Port quantities are expressed in *port frames*: both ports of joint ``J`` use the
 frame of ``J``'s child body (at the joint, body axes), so a joint needs no
