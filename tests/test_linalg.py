@@ -11,9 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from strategies import random_configuration, random_tree, with_armature
+from strategies import small_compiled_run
 
-import vdad
 from vdad import _linalg as L
 from vdad.spatial import pose_to_motion_transform, quat_log, quat_to_rot
 
@@ -86,19 +85,12 @@ def test_solve_general_and_cholesky():
 
 SMALL = """
 import json, sys, time
-import numpy as np
 sys.path.insert(0, {tests!r})
-from strategies import random_configuration, random_tree, with_armature
+from strategies import small_compiled_run
 import vdad
-model = with_armature(random_tree(5, n=6, roots=2, composite=True), 5)
-rng = np.random.default_rng(5)
-q = random_configuration(model, rng)
-qd, tau = rng.normal(size=model.nv), rng.normal(size=model.nv)
-f = rng.normal(size=(model.nb, 6))
 t0 = time.perf_counter()
-qdd = vdad.forward_dynamics(model, q, qd, tau, f)
-print(json.dumps(dict(qdd=qdd.tolist(), first_call_s=time.perf_counter() - t0,
-                      where=vdad.__file__)))
+out = small_compiled_run({steps})
+print(json.dumps(dict(out, first_call_s=time.perf_counter() - t0, where=vdad.__file__)))
 """
 
 
@@ -109,22 +101,16 @@ def _run(code, env=None, cwd=None):
     return done
 
 
-def _expected():
-    model = with_armature(random_tree(5, n=6, roots=2, composite=True), 5)
-    rng = np.random.default_rng(5)
-    q = random_configuration(model, rng)
-    qd, tau = rng.normal(size=model.nv), rng.normal(size=model.nv)
-    f = rng.normal(size=(model.nb, 6))
-    return vdad.forward_dynamics(model, q, qd, tau, f)
-
-
 def test_plain_python_mode_gives_the_compiled_result():
     """NUMBA_DISABLE_JIT=1 runs the kernels as plain Python (a debugger can step
-    through a pass): the same accelerations as the compiled core."""
-    done = _run(SMALL.format(tests=str(ROOT / "tests")), {"NUMBA_DISABLE_JIT": "1"})
-    qdd = np.array(json.loads(done.stdout)["qdd"])
-    expected = _expected()
-    np.testing.assert_allclose(qdd, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    through a pass): the same accelerations as the compiled core, and the same
+    compiled steps (RK4, built-in forces: drag, random torques, a spring)."""
+    done = _run(SMALL.format(tests=str(ROOT / "tests"), steps=True), {"NUMBA_DISABLE_JIT": "1"})
+    out, expected = json.loads(done.stdout), small_compiled_run()
+    for name in ("qdd", "q", "qd"):              # forward dynamics; compiled steps, forces
+        e = np.array(expected[name])
+        np.testing.assert_allclose(np.array(out[name]), e, rtol=0,
+                                   atol=1e-12 * max(1.0, np.abs(e).max()))
     assert L.NOTICE not in done.stderr
 
 
@@ -142,7 +128,7 @@ def test_read_only_install_compiles_once_then_loads_from_the_user_cache(tmp_path
         p.chmod(0o555 if p.is_dir() else 0o444)
     cache = tmp_path / "cache"
     env = {"PYTHONPATH": str(site), "XDG_CACHE_HOME": str(cache), "NUMBA_CACHE_DIR": ""}
-    code = SMALL.format(tests=str(ROOT / "tests"))
+    code = SMALL.format(tests=str(ROOT / "tests"), steps=False)
     try:
         first = _run(code, env, cwd=tmp_path)
         second = _run(code, env, cwd=tmp_path)
@@ -152,7 +138,7 @@ def test_read_only_install_compiles_once_then_loads_from_the_user_cache(tmp_path
     assert first.stderr.count(L.NOTICE) == 1, first.stderr
     assert L.NOTICE not in second.stderr
     assert any(cache.rglob("*.nbi")), "numba wrote no cache index in the user cache"
-    expected = _expected()
+    expected = np.array(small_compiled_run(steps=False)["qdd"])
     out = [json.loads(done.stdout) for done in (first, second)]
     for o in out:
         np.testing.assert_allclose(np.array(o["qdd"]), expected, rtol=0,

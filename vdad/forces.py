@@ -224,11 +224,20 @@ def _rows(k):
     return np.arange(k, dtype=np.int64)
 
 
+@inlined
+def _point_wrenches(x, F, p, R, com, f):
+    for i in range(x.shape[0]):
+        _add_point_force(x[i], F[i], p[i], R[i], com[i], f[i])
+
+
 def point_wrenches(model, bodies, R, p, x, F):
     """Wrenches (k, 6) of forces ``F`` (k, 3) applied at world points ``x`` (k, 3)
-    of ``bodies`` with poses ``R, p``: torque about each centre of mass, force."""
-    c = p + mv(R, model.com[bodies])
-    return np.concatenate([cross3(x - c, F), F], axis=1)
+    of ``bodies`` with poses ``R, p``: torque about each centre of mass, force
+    (:func:`_add_point_force`, as the elements' kernels)."""
+    f = np.zeros((len(x), 6))
+    _point_wrenches(as_input(x), as_input(F), as_input(p), as_input(R),
+                    as_input(model.com[bodies]), f)
+    return f
 
 
 class Springs:
@@ -711,38 +720,35 @@ class ForceTables:
         m = forces.model
         kinds = {k: [e for e in forces.elements if type(e) is k] for k in self.BUILT_IN}
         sp = kinds[Springs]
-        cat = self._cat
+        cat, i64, vec = self._cat, np.int64, (3,)
         self.springs = sp
-        self.spring = (cat([e.bodies for e in sp], np.int64), cat([e.points for e in sp], 3),
-                       cat([m.com[e.bodies] for e in sp], 3),
+        self.spring = (cat([e.bodies for e in sp], i64), cat([e.points for e in sp], tail=vec),
+                       cat([m.com[e.bodies] for e in sp], tail=vec),
                        cat([e.stiffness for e in sp]), cat([e.damping for e in sp]),
                        cat([e.rest_length for e in sp]),
                        cat([np.full(len(e.bodies), e.string) for e in sp], bool))
         dr = kinds[Drag]
-        self.drag = (cat([e.bodies for e in dr], np.int64),
+        self.drag = (cat([e.bodies for e in dr], i64),
                      cat([np.full(len(e.bodies), e.rate) for e in dr]),
-                     cat([m.mass[e.bodies] for e in dr]), cat([m.com[e.bodies] for e in dr], 3),
-                     cat([m.inertia[e.bodies] for e in dr], (3, 3)))
+                     cat([m.mass[e.bodies] for e in dr]),
+                     cat([m.com[e.bodies] for e in dr], tail=vec),
+                     cat([m.inertia[e.bodies] for e in dr], tail=(3, 3)))
         fc = kinds[FloorContact]
-        self.floor = (cat([e.bodies[e.point_body] for e in fc], np.int64),
-                      cat([e.centres for e in fc], 3), cat([e.radii for e in fc]),
-                      cat([e.point_com for e in fc], 3), cat([e.k for e in fc]),
+        self.floor = (cat([e.bodies[e.point_body] for e in fc], i64),
+                      cat([e.centres for e in fc], tail=vec), cat([e.radii for e in fc]),
+                      cat([e.point_com for e in fc], tail=vec), cat([e.k for e in fc]),
                       cat([e.c for e in fc]),
                       cat([np.full(len(e.point_body), e.friction) for e in fc]),
                       cat([np.full(len(e.point_body), e.height) for e in fc]))
         self.pulses = kinds[RandomTorques]
         lim = [e.arrays for e in kinds[JointLimits]]
-        self.limits = tuple(cat([a[i] for a in lim], np.int64 if i in (0, 1, 6, 7) else float)
+        self.limits = tuple(cat([a[i] for a in lim], i64 if i in (0, 1, 6, 7) else float)
                             for i in range(11))
-        self.empty = not forces.elements
 
     @staticmethod
-    def _cat(arrays, shape=None):
-        """Concatenation of ``arrays`` as one contiguous array (float64 unless
-        ``shape`` is a dtype; ``shape``: the trailing shape when there are none)."""
-        dtype = shape if isinstance(shape, type) else float
-        tail = () if shape is None or isinstance(shape, type) else (
-            (shape,) if isinstance(shape, int) else shape)
+    def _cat(arrays, dtype=float, tail=()):
+        """Concatenation of ``arrays`` as one contiguous ``dtype`` array; with none,
+        an empty one of trailing shape ``tail``."""
         if not arrays:
             return np.zeros((0, *tail), dtype)
         return np.ascontiguousarray(np.concatenate(arrays), dtype)
@@ -766,7 +772,8 @@ class ForceTables:
             at += k
         tables = [e.table(float(times[0]), float(times[-1])) for e in self.pulses]
         pulses = (cat([e.bodies[t[0]] for e, t in zip(self.pulses, tables, strict=True)],
-                      np.int64), cat([t[1] for t in tables]), cat([t[2] for t in tables], 3),
+                      np.int64), cat([t[1] for t in tables]),
+                  cat([t[2] for t in tables], tail=(3,)),
                   cat([np.full(len(t[1]), e.duration)
                        for e, t in zip(self.pulses, tables, strict=True)]))
         return (*self.spring[:3], anchors, velocity, *self.spring[3:], *self.drag, *self.floor,

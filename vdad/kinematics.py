@@ -64,8 +64,7 @@ class JointSet:
     ``damping``, ``armature`` [nv] local.
     S, T, W, T_pad_eye [k,6,6]: constant joint subspaces of one-stage joints
     (multi-stage ones are computed from ``q`` by the kinematics); dof_index [k,6]:
-    local ``qd`` index of each column (``nv``: padding). lin_q, lin_v, ball_q
-    [., 4], ball_v [., 3]: the integration layout of :mod:`vdad.integrators`.
+    local ``qd`` index of each column (``nv``: padding).
     """
 
     model: object
@@ -103,10 +102,6 @@ class JointSet:
     W: np.ndarray
     T_pad_eye: np.ndarray
     dof_index: np.ndarray
-    lin_q: np.ndarray
-    lin_v: np.ndarray
-    ball_q: np.ndarray
-    ball_v: np.ndarray
 
     @property
     def k(self) -> int:
@@ -210,12 +205,6 @@ def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
     R0, p0 = model.placement_R[js], model.placement_p[js]
     if pre_R is not None:
         R0, p0 = pre_R @ R0, pre_p + np.einsum("kij,kj->ki", pre_R, p0)
-    ball = stage_kind == J.BALL
-    lin = np.flatnonzero(~ball)
-    lin_q = ranges(stage_q[lin], stage_nv[lin])
-    lin_v = ranges(stage_v[lin], stage_nv[lin])
-    ball_q = (stage_q[ball][:, None] + np.arange(4)).reshape(-1, 4)
-    ball_v = (stage_v[ball][:, None] + np.arange(3)).reshape(-1, 3)
     i64 = np.int64
     return JointSet(
         model, js, parent, order, root_of, pre_R, pre_p, np.ascontiguousarray(R0),
@@ -225,7 +214,7 @@ def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
         model.stage_anchor[stages], model.stage_ref[stages], model.stage_stiffness[stages],
         stage_q.astype(i64), stage_v.astype(i64), s_pad_all[stages], model.q_spring[q_index],
         damping, model.armature[v_index], S_all[js], T_all[js], W_all[js], T_pad_all[js],
-        dof_index, lin_q, lin_v, ball_q, ball_v)
+        dof_index)
 
 
 @lru_cache(maxsize=64)
@@ -423,18 +412,26 @@ def kinematics(model, q, qd, js=None, out=None) -> Kinematics:
     ``js`` (default: the whole model; ``q``, ``qd`` in ``js``'s local layout), into
     ``out`` (a :class:`Kinematics` of ``js``) if given."""
     js = plan(model) if js is None else js
-    kin = Kinematics.empty(js) if out is None else out
+    return _evaluate(js, q, qd, Kinematics.empty(js) if out is None else out)
+
+
+def _evaluate(js, q, qd=None, kin=None):
+    """:func:`kinematics_pass` of ``js`` into ``kin`` (new work arrays if None);
+    without ``qd``, placements and poses only."""
+    kin = Kinematics.empty(js) if kin is None else kin
     with compiling(kinematics_pass):
-        kinematics_pass(js.arrays, as_input(q), as_input(qd), True,
-                        *kin.arrays)
+        kinematics_pass(js.arrays, as_input(q), _NO_VELOCITY if qd is None else as_input(qd),
+                        qd is not None, *kin.arrays)
     return kin
+
+
+_NO_VELOCITY = np.zeros(0)
 
 
 def joint_kinematics(js, q):
     """Child poses in local parent frames and the padded ``S, T, W`` of every joint
     of ``js`` at its local configuration ``q``."""
-    kin = Kinematics.empty(js)
-    kinematics_pass(js.arrays, as_input(q), np.zeros(0), False, *kin.arrays)
+    kin = _evaluate(js, q)
     return kin.R_rel, kin.p_rel, kin.S, kin.T, kin.W
 
 
@@ -454,7 +451,5 @@ def body_poses(js, R_rel, p_rel):
 def world_poses(model, q):
     """World poses ``R`` (nb, 3, 3), ``p`` (nb, 3) of every body of ``model`` at
     configuration ``q`` (nq,)."""
-    js = plan(model)
-    kin = Kinematics.empty(js)
-    kinematics_pass(js.arrays, as_input(q), np.zeros(0), False, *kin.arrays)
+    kin = _evaluate(plan(model), q)
     return kin.R, kin.p

@@ -152,11 +152,8 @@ def compiled_forces(model, controller, external):
         owner = Forces(model, [])
     if not isinstance(owner, Forces) or owner.model is not model:
         return None
-    if external not in (None, owner.external) or controller not in (None, owner.controller):
-        return None
-    if (external is None) != (owner.external is None) or (
-            (controller is None) != (owner.controller is None)):
-        return None
+    if external != owner.external or controller != owner.controller:
+        return None                     # not exactly that Forces' two callables
     return ForceTables.of(owner)
 
 
