@@ -25,9 +25,16 @@ def test_products_match_numpy():
     A, B = rng.normal(size=(2, 6, 6))
     x = rng.normal(size=6)
     out, v = np.empty((6, 6)), np.empty(6)
-    for fn, expected in ((L.mm6, A @ B), (L.mmt6, A @ B.T), (L.mtm6, A.T @ B)):
-        fn(A, B, out)
-        np.testing.assert_allclose(out, expected, rtol=0, atol=50 * EPS)
+    L.mm6(A, B, out)
+    np.testing.assert_allclose(out, A @ B, rtol=0, atol=50 * EPS)
+    out[:] = A
+    L.mmt6_add(A, B, -2.0, out)
+    np.testing.assert_allclose(out, A - 2.0 * A @ B.T, rtol=0, atol=50 * EPS)
+    S = A + A.T
+    out[:] = S
+    L.mmt6_add_symmetric(A, A, 3.0, out)
+    np.testing.assert_allclose(out, S + 3.0 * A @ A.T, rtol=0, atol=100 * EPS)
+    np.testing.assert_array_equal(out, out.T)
     L.mv6(A, x, v)
     np.testing.assert_allclose(v, A @ x, rtol=0, atol=50 * EPS)
     v[:] = 1.0
@@ -41,15 +48,27 @@ def test_rotations_and_transforms_match_vdad_spatial():
     rng = np.random.default_rng(1)
     q = rng.normal(size=4)
     R = np.empty((3, 3))
-    L.quaternion_rotation(q, R)
+    L.quaternion_rotation(q, 0, R)
     np.testing.assert_allclose(R, quat_to_rot(q / np.linalg.norm(q)), rtol=0, atol=10 * EPS)
-    r = np.empty(3)
-    L.quaternion_log(q, r)
+    r = np.array(L.quaternion_log(*q))
     np.testing.assert_allclose(r, quat_log(q / np.linalg.norm(q)), rtol=0, atol=10 * EPS)
     p, m = rng.normal(size=3), rng.normal(size=6)
     out = np.empty(6)
     L.motion_to_child(R, p, m, out)
     np.testing.assert_allclose(out, pose_to_motion_transform(R, p) @ m, rtol=0, atol=20 * EPS)
+    c, Iinv, mass = rng.normal(size=3), rng.normal(size=(3, 3)), 2.5
+    X, Q, XQ = np.empty((3, 6, 6))
+    L.port_transform(R, p, c, X)
+    E, d = R.T, c - p
+    E_dx = -np.cross(d, E)                              # rows e_i x d: E [d]x
+    np.testing.assert_allclose(X, np.block([[E, np.zeros((3, 3))], [E_dx, E]]), rtol=0,
+                               atol=20 * EPS)
+    D = np.zeros((6, 6))
+    D[:3, :3], D[3:, 3:] = Iinv, np.eye(3) / mass
+    L.inverse_inertia_transpose(X, Iinv, mass, Q)
+    np.testing.assert_allclose(Q, D @ X.T, rtol=0, atol=50 * EPS)
+    L.port_product(X, Q, XQ)
+    np.testing.assert_allclose(XQ, X @ D @ X.T, rtol=0, atol=200 * EPS)
 
 
 @pytest.mark.parametrize("d", range(7))

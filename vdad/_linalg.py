@@ -28,6 +28,14 @@ from numba import config, njit
 #: by zero gives inf or NaN, which the callers' checks report, instead of raising
 #: inside a kernel) ...
 kernel = njit(cache=True, error_model="numpy")
+#: ... of the loops over nodes and joints, which take every array they need (no
+#: allocation) and run without numba's reference counting: with it, every view
+#: (``Phi[k]``) and every array handed to an inlined kernel costs an atomic
+#: increment and decrement, which LLVM cannot prune across a kernel's branches and
+#: loops, more than the arithmetic of a joint (3.2x on the kinematics pass, 1.5x on
+#: the DCA's; docs/design.md, "The compiled core"). The arrays are the caller's,
+#: alive for the whole call ...
+pass_kernel = njit(cache=True, error_model="numpy", _nrt=False)
 #: ... of passes over independent subtrees that numba runs on its threads ...
 parallel_kernel = njit(cache=True, error_model="numpy", parallel=True)
 #: ... and of the per-node and per-joint kernels and the small products below,
@@ -76,7 +84,8 @@ def source_stamp():
     """A hash of the source of the ``vdad`` modules that define compiled code."""
     sources = [p.read_bytes() for p in sorted(Path(__file__).resolve().parent.glob("*.py"))]
     return hashlib.sha1(b"".join(s for s in sources if b"@kernel" in s or b"@inlined" in s
-                                 or b"@parallel_kernel" in s)).hexdigest()[:16]
+                                 or b"@pass_kernel" in s or b"@parallel_kernel" in s)
+                        ).hexdigest()[:16]
 
 
 def clear_stale_caches():
@@ -137,28 +146,6 @@ def mm6(A, B, out):
 
 
 @inlined
-def mmt6(A, B, out):
-    """``out = A B^T`` (6, 6)."""
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += A[i, k] * B[j, k]
-            out[i, j] = s
-
-
-@inlined
-def mtm6(A, B, out):
-    """``out = A^T B`` (6, 6)."""
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += A[k, i] * B[k, j]
-            out[i, j] = s
-
-
-@inlined
 def mv6(A, x, out):
     """``out = A x`` (6,)."""
     for i in range(6):
@@ -187,6 +174,30 @@ def symmetric_part(A, out):
             s = 0.5 * (A[i, j] + A[j, i])
             out[i, j] = s
             out[j, i] = s
+
+
+@inlined
+def mmt6_add(A, B, s, out):
+    """``out += s A B^T`` (6, 6)."""
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += A[i, k] * B[j, k]
+            out[i, j] += s * acc
+
+
+@inlined
+def mmt6_add_symmetric(A, B, s, out):
+    """``out += s A B^T`` (6, 6) where both ``out`` and ``A B^T`` are symmetric:
+    the upper triangle computed, the lower one copied from it."""
+    for i in range(6):
+        for j in range(i, 6):
+            acc = 0.0
+            for k in range(6):
+                acc += A[i, k] * B[j, k]
+            out[i, j] += s * acc
+            out[j, i] = out[i, j]
 
 
 # --- 3x3 and 3-vector products -----------------------------------------------------------
@@ -239,11 +250,12 @@ def axis_angle_rotation(a, t, R):
 
 
 @inlined
-def quaternion_rotation(q, R):
-    """``R`` of the quaternion ``q = (w, x, y, z)``, normalised first (as
+def quaternion_rotation(q, i, R):
+    """``R`` of the quaternion ``q[i:i + 4] = (w, x, y, z)``, normalised first (as
     :func:`vdad.spatial.quat_to_rot` of ``q / |q|``)."""
-    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    w, x, y, z = q[0] / n, q[1] / n, q[2] / n, q[3] / n
+    w, x, y, z = q[i], q[i + 1], q[i + 2], q[i + 3]
+    n = np.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
     R[0, 0] = 1 - 2 * (y * y + z * z)
     R[0, 1] = 2 * (x * y - w * z)
     R[0, 2] = 2 * (x * z + w * y)
@@ -256,18 +268,16 @@ def quaternion_rotation(q, R):
 
 
 @inlined
-def quaternion_log(q, out):
-    """Rotation vector ``out`` (3,) of ``q / |q|``, angle in [0, pi]
-    (:func:`vdad.spatial.quat_log`)."""
-    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    sign = -1.0 if q[0] < 0 else 1.0
-    w = sign * q[0] / n
-    x, y, z = sign * q[1] / n, sign * q[2] / n, sign * q[3] / n
+def quaternion_log(q0, q1, q2, q3):
+    """Rotation vector ``(r0, r1, r2)`` of ``q / |q|``, ``q = (q0, q1, q2, q3)``,
+    angle in [0, pi] (:func:`vdad.spatial.quat_log`)."""
+    n = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    sign = -1.0 if q0 < 0 else 1.0
+    w = sign * q0 / n
+    x, y, z = sign * q1 / n, sign * q2 / n, sign * q3 / n
     s = np.sqrt(x * x + y * y + z * z)
     k = 2.0 / max(w, 1e-300) if s <= 1e-12 else 2.0 * np.arctan2(s, w) / s
-    out[0] = k * x
-    out[1] = k * y
-    out[2] = k * z
+    return k * x, k * y, k * z
 
 
 @inlined
@@ -330,12 +340,30 @@ def port_transform(R, r, c, X):
 
 
 @inlined
-def times_inverse_inertia(X, Iinv, m, out):
-    """``out = X diag(I^-1, 1/m)`` (6, 6), ``Iinv`` = ``I^-1`` (3, 3)."""
-    for i in range(6):
+def inverse_inertia_transpose(X, Iinv, m, out):
+    """``out = diag(I^-1, 1/m) X^T`` (6, 6) of a port transform ``X``
+    (:func:`port_transform`; ``Iinv`` = ``I^-1`` (3, 3)): ``[[I^-1 E^T, I^-1
+    B^T], [0, E^T / m]]``."""
+    for s in range(6):
+        for r in range(3):
+            out[r, s] = Iinv[r, 0] * X[s, 0] + Iinv[r, 1] * X[s, 1] + Iinv[r, 2] * X[s, 2]
+            out[3 + r, s] = X[s, 3 + r] / m
+
+
+@inlined
+def port_product(X, Q, out):
+    """``out = X Q`` (6, 6) of a port transform ``X = [[E, 0], [B, E]]``
+    (:func:`port_transform`) and ``Q = [[Q11, Q12], [0, Q22]]``
+    (:func:`inverse_inertia_transpose`), skipping the zero blocks: five 3x3 products
+    instead of one 6x6."""
+    for i in range(3):
         for j in range(3):
-            out[i, j] = X[i, 0] * Iinv[0, j] + X[i, 1] * Iinv[1, j] + X[i, 2] * Iinv[2, j]
-            out[i, 3 + j] = X[i, 3 + j] / m
+            out[i, j] = X[i, 0] * Q[0, j] + X[i, 1] * Q[1, j] + X[i, 2] * Q[2, j]
+            out[i, 3 + j] = X[i, 0] * Q[0, 3 + j] + X[i, 1] * Q[1, 3 + j] + X[i, 2] * Q[2, 3 + j]
+            out[3 + i, j] = X[3 + i, 0] * Q[0, j] + X[3 + i, 1] * Q[1, j] + X[3 + i, 2] * Q[2, j]
+            out[3 + i, 3 + j] = (X[3 + i, 0] * Q[0, 3 + j] + X[3 + i, 1] * Q[1, 3 + j]
+                                 + X[3 + i, 2] * Q[2, 3 + j] + X[3 + i, 3] * Q[3, 3 + j]
+                                 + X[3 + i, 4] * Q[4, 3 + j] + X[3 + i, 5] * Q[5, 3 + j])
 
 
 # --- small dense solves ----------------------------------------------------------------
@@ -401,7 +429,7 @@ def complement(S, d, T, W, work):
     the other columns zero. ``work`` (3, 6, 6) is scratch. Any basis of
     ``null(S^T)`` gives the same (T7)."""
     Q, G, Z = work[0], work[1], work[2]
-    h = np.empty(6)
+    h = Z[0]                                  # Z is needed only after the reflections
     for i in range(6):
         for j in range(6):
             Q[i, j] = S[i, j] if j < d else 0.0

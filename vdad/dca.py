@@ -37,18 +37,20 @@ from numba import prange
 from ._linalg import (
     cholesky,
     inlined,
+    inverse_inertia_transpose,
     kernel,
     mm6,
-    mmt6,
-    mtm6,
+    mmt6_add,
+    mmt6_add_symmetric,
     mtv6_add,
     mv6,
     parallel_kernel,
+    pass_kernel,
+    port_product,
     port_transform,
     quaternion_log,
     solve_general,
     symmetric_part,
-    times_inverse_inertia,
 )
 from .errors import InputError
 from .kinematics import Kinematics, kinematics_pass, plan
@@ -127,7 +129,7 @@ def body_arrays(model) -> tuple:
 
 # --- joint forces ---------------------------------------------------------------------
 
-@kernel
+@pass_kernel
 def passive_forces_pass(stage_kind, stage_q, stage_v, stage_stiffness, q_spring, damping,
                         q, qd, tau):
     """``tau = -D qd - K d`` (nv,): the joint dampers, and the springs of every
@@ -135,7 +137,6 @@ def passive_forces_pass(stage_kind, stage_q, stage_v, stage_stiffness, q_spring,
     ``q_spring^-1 q``, as MuJoCo; ``docs/forces.md``)."""
     for i in range(qd.shape[0]):
         tau[i] = -damping[i] * qd[i]
-    rel, d = np.empty(4), np.empty(3)
     for s in range(stage_kind.shape[0]):
         k = stage_stiffness[s]
         if k == 0.0:
@@ -144,11 +145,10 @@ def passive_forces_pass(stage_kind, stage_q, stage_v, stage_stiffness, q_spring,
         if kind == 2:                                  # ball: log(conj(q_spring) q)
             a0, a1, a2, a3 = q_spring[iq], -q_spring[iq + 1], -q_spring[iq + 2], -q_spring[iq + 3]
             b0, b1, b2, b3 = q[iq], q[iq + 1], q[iq + 2], q[iq + 3]
-            rel[0] = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
-            rel[1] = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
-            rel[2] = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
-            rel[3] = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
-            quaternion_log(rel, d)
+            d = quaternion_log(a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+                               a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+                               a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+                               a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
             for c in range(3):
                 tau[iv + c] -= k * d[c]
         else:
@@ -159,35 +159,36 @@ def passive_forces_pass(stage_kind, stage_q, stage_v, stage_stiffness, q_spring,
 # --- node kernels -----------------------------------------------------------------------
 
 @inlined
-def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp):
+def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
     """Blocks of body ``i``, theory (T2)-(T3): ``Phi_hk = X_h Ibar^-1 X_k^T`` and
     ``b_h = X_h Ibar^-1 (f - v_c ×* Ibar v_c)`` over its ports ``h, k``, with
     ``X_h = X_{h<-c}`` from its centre of mass to port ``h`` and ``f`` the known
     wrench at the centre of mass (gravity and ``f_ext``, body axes). The inbound
     port is the body frame; the port of a child joint is that joint's child frame.
-    ``tmp`` (>= 3, 6, 6): scratch."""
+    ``X``, ``Q`` (>= ports, 6, 6): ``X_h`` and ``Ibar^-1 X_h^T``; ``tmp`` (>= 3, 6,
+    6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     mass, com, inertia, Iinv, gravity = bodies[0], bodies[1], bodies[2], bodies[3], bodies[4]
     R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
     P, s0, k0 = n_ports[i], slot_base[i], block_base[i]
     m, c, I, Ii = mass[i], com[i], inertia[i], Iinv[i]
-    eye, zero, Z = tmp[2, :3, :3], tmp[2, 3, :3], tmp[0]
+    eye, zero = tmp[2, :3, :3], tmp[2, 3, :3]
     for r in range(3):
         zero[r] = 0.0
         for s in range(3):
             eye[r, s] = 1.0 if r == s else 0.0
     for h in range(P):
-        j = slot_joint[s0 + h]
+        j, Xh = slot_joint[s0 + h], X[h]
         if slot_side[s0 + h] > 0:
-            port_transform(eye, zero, c, X[h])
+            port_transform(eye, zero, c, Xh)
         else:
-            port_transform(R_rel[j], p_rel[j], c, X[h])
+            port_transform(R_rel[j], p_rel[j], c, Xh)
+        inverse_inertia_transpose(Xh, Ii, m, Q[h])
     for h in range(P):                                           # (T2), Phi_kh = Phi_hk^T
-        times_inverse_inertia(X[h], Ii, m, Z)
         for k in range(h, P):
             B = Phi[k0 + h * P + k]
-            mmt6(Z, X[k], B)
+            port_product(X[h], Q[k], B)
             if k > h:
                 Bt = Phi[k0 + k * P + h]
                 for r in range(6):
@@ -222,62 +223,76 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, tmp):
 
 
 @inlined
-def articulated_inverse(Wm, T, nT, Y, tmp):
+def articulated_inverse(Wm, T, nT, Y, WT, K, Z):
     """(T7): ``Y = T (T^T W_m T)^-1 T^T`` (6, 6) for the first ``nT`` columns of
-    ``T`` (the others zero), by Cholesky ``K = L L^T`` of ``K = T^T W_m T`` with 1 on
-    the diagonal of the padding, ``Z = L^-1 T^T`` (zero rows on the padding) and
-    ``Y = Z^T Z``: literal 6x6 loops whatever ``nT``. Where rounding leaves ``K``
-    not quite positive definite (ill-conditioned trees of thousands of bodies),
-    ``Y = T K^-1 T^T`` by Gaussian elimination with pivoting instead; a singular
-    ``K`` gives NaN (the caller reports the overflow). ``tmp`` (>= 3, 6, 6):
-    scratch."""
-    WT, K, Z = tmp[0], tmp[1], tmp[2]
-    mm6(Wm, T, WT)
-    mtm6(T, WT, K)
-    for r in range(nT, 6):
-        K[r, r] += 1.0
-    if not cholesky(K, 6):
-        mtm6(T, WT, K)
-        for r in range(nT, 6):
-            K[r, r] += 1.0
-        for r in range(6):
-            for c in range(6):
-                Z[r, c] = T[c, r]
-        if not solve_general(K, Z, 6):
-            Y[:, :] = np.nan
-            return
-        mm6(T, Z, WT)
-        symmetric_part(WT, Y)
-        return
-    for col in range(6):                                        # forward substitution
-        for r in range(6):
-            acc = T[col, r]
-            for k in range(r):
-                acc -= K[r, k] * Z[k, col]
-            Z[r, col] = acc / K[r, r]
+    ``T``, by Cholesky ``K = L L^T`` of ``K = T^T W_m T`` (nT, nT), ``Z = L^-1 T^T``
+    (nT, 6) and ``Y = Z^T Z``. Where rounding leaves ``K`` not quite positive
+    definite (ill-conditioned trees of thousands of bodies), ``Y = T K^-1 T^T`` by
+    Gaussian elimination with pivoting instead; a singular ``K`` gives NaN (the
+    caller reports the overflow). ``WT``, ``K``, ``Z`` (6, 6): scratch."""
     for r in range(6):
-        for s in range(r, 6):
+        for c in range(nT):
             acc = 0.0
             for k in range(6):
-                acc += Z[k, r] * Z[k, s]
-            Y[r, s] = acc
-            Y[s, r] = acc
+                acc += Wm[r, k] * T[k, c]
+            WT[r, c] = acc
+    for r in range(nT):
+        for c in range(r, nT):
+            acc = 0.0
+            for k in range(6):
+                acc += T[k, r] * WT[k, c]
+            K[r, c] = acc
+            K[c, r] = acc
+    if cholesky(K, nT):
+        for col in range(6):                                    # forward substitution
+            for r in range(nT):
+                acc = T[col, r]
+                for k in range(r):
+                    acc -= K[r, k] * Z[k, col]
+                Z[r, col] = acc / K[r, r]
+        for r in range(6):
+            for s in range(r, 6):
+                acc = 0.0
+                for k in range(nT):
+                    acc += Z[k, r] * Z[k, s]
+                Y[r, s] = acc
+                Y[s, r] = acc
+        return
+    for r in range(nT):
+        for c in range(nT):
+            acc = 0.0
+            for k in range(6):
+                acc += T[k, r] * WT[k, c]
+            K[r, c] = acc
+        for c in range(6):
+            Z[r, c] = T[c, r]
+    if not solve_general(K, Z, nT):
+        Y[:, :] = np.nan
+        return
+    for r in range(6):
+        for s in range(6):
+            acc = 0.0
+            for k in range(nT):
+                acc += T[r, k] * Z[k, s]
+            WT[r, s] = acc
+    symmetric_part(WT, Y)
 
 
 @inlined
-def joint_inputs(Wm, Y, W, d, tau, Ia, gamma, beta, tmp):
-    """``beta_C`` (6,) of (T9), ``W tau - Y (W_m W tau + gamma)``; with rotor
-    inertia ``Ia`` (d,) on the joint's dofs, (A1)-(A2) of ``docs/joints.md``:
-    ``P = W - Y W_m W``, ``F = (1 + Ia P^T W_m W)^-1``, ``Y += P F Ia P^T`` and
-    ``beta_C = P F tau - Y gamma``. ``tmp`` (>= 4, 6, 6): scratch."""
+def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, tmp):
+    """``beta_C`` (6,) of (T9), ``W tau - Y (W_m W tau + gamma)`` with the joint's
+    forces ``tau[v0:v0 + d]``; with rotor inertia ``Ia = armature[v0:v0 + d]`` on its
+    dofs, (A1)-(A2) of ``docs/joints.md``: ``P = W - Y W_m W``, ``F = (1 + Ia P^T
+    W_m W)^-1``, ``Y += P F Ia P^T`` and ``beta_C = P F tau - Y gamma``. ``tmp``
+    (>= 5, 6, 6): scratch."""
     Wtau, t = tmp[0, 0], tmp[0, 1]
     loaded = False
     for k in range(d):
-        loaded = loaded or Ia[k] != 0.0
+        loaded = loaded or armature[v0 + k] != 0.0
     for r in range(6):
         acc = 0.0
         for k in range(d):
-            acc += W[r, k] * tau[k]
+            acc += W[r, k] * tau[v0 + k]
         Wtau[r] = acc
     if not loaded:                                              # (T9)
         mv6(Wm, Wtau, t)
@@ -299,30 +314,37 @@ def joint_inputs(Wm, Y, W, d, tau, Ia, gamma, beta, tmp):
             for s in range(6):
                 acc -= Y[r, s] * WmW[s, k]
             P[r, k] = acc
-    N = np.zeros((6, 7))                                        # M N = (Ia P^T | tau)
+    F = tmp[4]                                                  # F = M^-1 (d, d)
+    for k in range(6):
+        for m in range(6):
+            F[k, m] = 1.0 if k == m else 0.0
     for k in range(d):
         for m in range(d):
             acc = 0.0
             for s in range(6):
                 acc += P[s, k] * WmW[s, m]
-            M[k, m] = (1.0 if k == m else 0.0) + Ia[k] * acc
-        for r in range(6):
-            N[k, r] = Ia[k] * P[r, k]
-        N[k, 6] = tau[k]
-    if not solve_general(M, N, d):
-        N[:, :] = np.nan
+            M[k, m] = (1.0 if k == m else 0.0) + armature[v0 + k] * acc
+    if not solve_general(M, F, d):
+        F[:, :] = np.nan
+    PF = WmW                                                    # P F (6, d)
+    for r in range(6):
+        for m in range(d):
+            acc = 0.0
+            for k in range(d):
+                acc += P[r, k] * F[k, m]
+            PF[r, m] = acc
     for r in range(6):
         for s in range(6):
             acc = 0.0
-            for k in range(d):
-                acc += P[r, k] * N[k, s]
+            for m in range(d):
+                acc += PF[r, m] * armature[v0 + m] * P[s, m]
             Y[r, s] += acc
     symmetric_part(Y, Y)
     mv6(Y, gamma, t)
     for r in range(6):
         acc = 0.0
-        for k in range(d):
-            acc += P[r, k] * N[k, 6]
+        for m in range(d):
+            acc += PF[r, m] * tau[v0 + m]
         beta[r] = acc - t[r]
 
 
@@ -331,7 +353,7 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamm
     """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
     ``B`` joined by joint ``j``, theory (T6)-(T12). Keeps ``Y``, ``W_m``,
     ``beta``, ``gamma`` of the node (row ``i``) for :func:`solve_node`. ``GY`` (max ports, 6, 6),
-    ``tmp`` (>= 7, 6, 6): scratch."""
+    ``tmp`` (>= 5, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint = js[6], js[7]
@@ -351,46 +373,47 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamm
             gj[r] -= b[sA, r]
             for s in range(6):
                 Wmj[r, s] += Phi[kA, r, s]
-    articulated_inverse(Wmj, T[j], 6 - d, Yj, tmp[3:])           # (T7)
-    joint_inputs(Wmj, Yj, Wj, d, tau[v_start[j]:v_start[j] + d],
-                 armature[v_start[j]:v_start[j] + d], gj, bj, tmp[3:])  # (T9), (A1)-(A2)
-    # (T11)-(T12) over C's ports a, c: G_a = s_a Phi^X_{a j_X}, kept as GY_a = G_a Y
+    Tj, WT, K, Z = T[j], tmp[0], tmp[1], tmp[2]
+    if d == 1:                                  # (T7); hinges and slides: sizes known
+        articulated_inverse(Wmj, Tj, 5, Yj, WT, K, Z)           # to the compiler, unrolled
+    else:
+        articulated_inverse(Wmj, Tj, 6 - d, Yj, WT, K, Z)
+    joint_inputs(Wmj, Yj, Wj, d, v_start[j], tau, armature, gj, bj, tmp)  # (T9), (A1)-(A2)
+    # (T11)-(T12) over C's ports a, c: G_a = s_a Phi^X_{a j_X}, GY_a = Phi^X_{a j_X} Y
     P, s0, k0 = n_ports[C], slot_base[C], block_base[C]
-    M = tmp[0]
     for a in range(P):
-        ka = column_block(s0 + a, A, jA, jB, tree)
-        sa = slot_sign[s0 + a]
-        mm6(Phi[ka], Yj, GY[a])
+        Ga, ba = Phi[column_block(s0 + a, A, jA, jB, tree)], b[s0 + a]
+        mm6(Ga, Yj, GY[a])
+        X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]
+        mv6(Ga, bj, ba)                                          # (T12)
         for r in range(6):
-            for s in range(6):
-                GY[a, r, s] *= sa
-        X, ia = slot_child[s0 + a], slot_index[s0 + a]
-        mv6(Phi[ka], bj, b[s0 + a])                              # (T12)
-        for r in range(6):
-            b[s0 + a, r] = b[slot_base[X] + ia, r] + sa * b[s0 + a, r]
-    for a in range(P):
+            ba[r] = b[slot_base[X] + ia, r] + sa * ba[r]
+    for a in range(P):                                           # (T11)
         X, ia = slot_child[s0 + a], slot_index[s0 + a]
         for cc in range(a, P):
-            kc = column_block(s0 + cc, A, jA, jB, tree)
-            sc = slot_sign[s0 + cc]
-            mmt6(GY[a], Phi[kc], M)                              # G_a Y G_c^T
+            Gc = Phi[column_block(s0 + cc, A, jA, jB, tree)]
+            Cac = Phi[k0 + a * P + cc]
             if slot_child[s0 + cc] == X:
                 kX = block_base[X] + ia * n_ports[X] + slot_index[s0 + cc]
-                for r in range(6):
-                    for s in range(6):
-                        M[r, s] = Phi[kX, r, s] - sc * M[r, s]
+                if cc == a:
+                    symmetric_part(Phi[kX], Cac)
+                else:
+                    for r in range(6):
+                        for s in range(6):
+                            Cac[r, s] = Phi[kX, r, s]
             else:
                 for r in range(6):
                     for s in range(6):
-                        M[r, s] = -sc * M[r, s]
-            if cc == a:                                          # (T11)
-                symmetric_part(M, Phi[k0 + a * P + a])
+                        Cac[r, s] = 0.0
+            sign = -slot_sign[s0 + a] * slot_sign[s0 + cc]       # - G_a Y G_c^T
+            if cc == a:
+                mmt6_add_symmetric(GY[a], Gc, sign, Cac)
             else:
-                Ca, Cc = Phi[k0 + a * P + cc], Phi[k0 + cc * P + a]
+                mmt6_add(GY[a], Gc, sign, Cac)
+                Cca = Phi[k0 + cc * P + a]
                 for r in range(6):
                     for s in range(6):
-                        Ca[r, s] = M[r, s]
-                        Cc[s, r] = M[r, s]
+                        Cca[s, r] = Cac[r, s]
 
 
 @inlined
@@ -421,12 +444,13 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
     s0 = slot_base[C]
     for a in range(n_ports[C]):                                  # f_a = side f_J[port]
         k = column_block(s0 + a, left[i], port_A[i], port_B[i], tree)
-        mtv6_add(Phi[k], f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a], u)
+        mtv6_add(Phi[k], f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a],
+                 u)
     fJ = f_J[j]
-    mv6(Y[i], u, t)                                              # (T10)
+    mv6(Y[i], u, t)                                         # (T10)
     for r in range(6):
         fJ[r] = beta[i, r] - t[r]
-    mv6(Wm[i], fJ, t)                                            # (T13)
+    mv6(Wm[i], fJ, t)                                       # (T13)
     for r in range(6):
         t[r] += u[r] + gamma[i, r]
     Wj = W[j]
@@ -437,7 +461,7 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
         qdd[v_start[j] + k] = acc
 
 
-@kernel
+@pass_kernel
 def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma,
                    f_J, qdd, X, GY, tmp):
     """The DCA of one root's subtree, ``post[lo:hi]``: the leaves and the
@@ -447,7 +471,7 @@ def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm,
     for k in range(lo, hi):                     # depth first: a subtree stays in cache
         n = post[k]
         if n < nb:
-            leaf(n, tree, bodies, f_ext, kin, Phi, b, X, tmp)
+            leaf(n, tree, bodies, f_ext, kin, Phi, b, X, GY, tmp)
         else:
             assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, Wm, beta,
                           gamma, GY, tmp)
@@ -499,6 +523,6 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
 def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     """One DCA evaluation: the kinematics of ``(q, qd)`` (theory §3), then
     :func:`dynamics_pass`."""
-    R_rel, p_rel, S, T, W, R, p, v, c = kin
-    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c)
+    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch = kin
+    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch)
     dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)

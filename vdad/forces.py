@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._linalg import as_input, inlined, kernel, quaternion_log
+from ._linalg import as_input, inlined, pass_kernel, quaternion_log
 from .checks import check_real, real_array, show
 from .errors import InputError, ModelError
 from .kinematics import Kinematics, joint_set, kinematics
@@ -89,18 +89,18 @@ def world_velocities(R, v, w, vo):
 # and ``target = 0..k-1``, the compiled step loop with every body's state.
 
 @inlined
-def _add_point_force(x, F, p, R, com, f):
+def _add_point_force(x0, x1, x2, F0, F1, F2, p, R, com, f):
     """``f += ((x - c) × F, F)`` with ``c = p + R com`` the centre of mass."""
     c0 = p[0] + R[0, 0] * com[0] + R[0, 1] * com[1] + R[0, 2] * com[2]
     c1 = p[1] + R[1, 0] * com[0] + R[1, 1] * com[1] + R[1, 2] * com[2]
     c2 = p[2] + R[2, 0] * com[0] + R[2, 1] * com[1] + R[2, 2] * com[2]
-    d0, d1, d2 = x[0] - c0, x[1] - c1, x[2] - c2
-    f[0] += d1 * F[2] - d2 * F[1]
-    f[1] += d2 * F[0] - d0 * F[2]
-    f[2] += d0 * F[1] - d1 * F[0]
-    f[3] += F[0]
-    f[4] += F[1]
-    f[5] += F[2]
+    d0, d1, d2 = x0 - c0, x1 - c1, x2 - c2
+    f[0] += d1 * F2 - d2 * F1
+    f[1] += d2 * F0 - d0 * F2
+    f[2] += d0 * F1 - d1 * F0
+    f[3] += F0
+    f[4] += F1
+    f[5] += F2
 
 
 @inlined
@@ -109,49 +109,49 @@ def spring_wrenches(rows, target, points, com, anchors, anchor_vel, stiffness, d
     """:class:`Springs` (``docs/forces.md``): the force ``-(k (L - L0) + c dL/dt) u``
     at each attachment point, ``u`` the unit vector from the anchor; a string
     pulls only while ``L > L0`` and never pushes."""
-    x, F = np.empty(3), np.empty(3)
     for i in range(rows.shape[0]):
         b = rows[i]
         Rb, pt = R[b], points[i]
-        for r in range(3):
-            x[r] = Rb[r, 0] * pt[0] + Rb[r, 1] * pt[1] + Rb[r, 2] * pt[2]   # R point
-        d0, d1, d2 = p[b, 0] + x[0] - anchors[i, 0], p[b, 1] + x[1] - anchors[i, 1], \
-            p[b, 2] + x[2] - anchors[i, 2]
+        x0 = Rb[0, 0] * pt[0] + Rb[0, 1] * pt[1] + Rb[0, 2] * pt[2]   # R point
+        x1 = Rb[1, 0] * pt[0] + Rb[1, 1] * pt[1] + Rb[1, 2] * pt[2]
+        x2 = Rb[2, 0] * pt[0] + Rb[2, 1] * pt[1] + Rb[2, 2] * pt[2]
+        d0, d1, d2 = p[b, 0] + x0 - anchors[i, 0], p[b, 1] + x1 - anchors[i, 1], \
+            p[b, 2] + x2 - anchors[i, 2]
         L = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         s = max(L, 1e-12)
         u0, u1, u2 = d0 / s, d1 / s, d2 / s
         wb, vb = w[b], v[b]
-        r0 = vb[0] + wb[1] * x[2] - wb[2] * x[1] - anchor_vel[i, 0]
-        r1 = vb[1] + wb[2] * x[0] - wb[0] * x[2] - anchor_vel[i, 1]
-        r2 = vb[2] + wb[0] * x[1] - wb[1] * x[0] - anchor_vel[i, 2]
+        r0 = vb[0] + wb[1] * x2 - wb[2] * x1 - anchor_vel[i, 0]
+        r1 = vb[1] + wb[2] * x0 - wb[0] * x2 - anchor_vel[i, 1]
+        r2 = vb[2] + wb[0] * x1 - wb[1] * x0 - anchor_vel[i, 2]
         T = stiffness[i] * (L - rest[i]) + damping[i] * (u0 * r0 + u1 * r1 + u2 * r2)
         if string[i]:
             T = max(T, 0.0) if L > rest[i] else 0.0
-        for r in range(3):
-            x[r] += p[b, r]
-        F[0], F[1], F[2] = -T * u0, -T * u1, -T * u2
-        _add_point_force(x, F, p[b], Rb, com[i], f[target[i]])
+        _add_point_force(p[b, 0] + x0, p[b, 1] + x1, p[b, 2] + x2, -T * u0, -T * u1, -T * u2,
+                         p[b], Rb, com[i], f[target[i]])
 
 
 @inlined
 def drag_wrenches(rows, target, rate, mass, com, inertia, R, p, w, v, f):
     """:class:`Drag`: ``-rate (I w; m v_c)``, ``I`` in world axes, ``v_c`` the
     velocity of the centre of mass (``rate`` per row)."""
-    a, Ia, c = np.empty(3), np.empty(3), np.empty(3)
     for i in range(rows.shape[0]):
-        b, Rb, wb = rows[i], R[rows[i]], w[rows[i]]
-        for r in range(3):
-            a[r] = Rb[0, r] * wb[0] + Rb[1, r] * wb[1] + Rb[2, r] * wb[2]   # R^T w
-            c[r] = Rb[r, 0] * com[i, 0] + Rb[r, 1] * com[i, 1] + Rb[r, 2] * com[i, 2]
-        I = inertia[i]
-        for r in range(3):
-            Ia[r] = I[r, 0] * a[0] + I[r, 1] * a[1] + I[r, 2] * a[2]
+        b, Rb, wb, I = rows[i], R[rows[i]], w[rows[i]], inertia[i]
+        a0 = Rb[0, 0] * wb[0] + Rb[1, 0] * wb[1] + Rb[2, 0] * wb[2]    # R^T w
+        a1 = Rb[0, 1] * wb[0] + Rb[1, 1] * wb[1] + Rb[2, 1] * wb[2]
+        a2 = Rb[0, 2] * wb[0] + Rb[1, 2] * wb[1] + Rb[2, 2] * wb[2]
+        Ia0 = I[0, 0] * a0 + I[0, 1] * a1 + I[0, 2] * a2
+        Ia1 = I[1, 0] * a0 + I[1, 1] * a1 + I[1, 2] * a2
+        Ia2 = I[2, 0] * a0 + I[2, 1] * a1 + I[2, 2] * a2
+        c0 = Rb[0, 0] * com[i, 0] + Rb[0, 1] * com[i, 1] + Rb[0, 2] * com[i, 2]   # R com
+        c1 = Rb[1, 0] * com[i, 0] + Rb[1, 1] * com[i, 1] + Rb[1, 2] * com[i, 2]
+        c2 = Rb[2, 0] * com[i, 0] + Rb[2, 1] * com[i, 1] + Rb[2, 2] * com[i, 2]
         fi = f[target[i]]
-        vc0 = v[b, 0] + wb[1] * c[2] - wb[2] * c[1]
-        vc1 = v[b, 1] + wb[2] * c[0] - wb[0] * c[2]
-        vc2 = v[b, 2] + wb[0] * c[1] - wb[1] * c[0]
+        vc0 = v[b, 0] + wb[1] * c2 - wb[2] * c1
+        vc1 = v[b, 1] + wb[2] * c0 - wb[0] * c2
+        vc2 = v[b, 2] + wb[0] * c1 - wb[1] * c0
         for r in range(3):
-            fi[r] -= rate[i] * (Rb[r, 0] * Ia[0] + Rb[r, 1] * Ia[1] + Rb[r, 2] * Ia[2])
+            fi[r] -= rate[i] * (Rb[r, 0] * Ia0 + Rb[r, 1] * Ia1 + Rb[r, 2] * Ia2)
         fi[3] -= rate[i] * (mass[i] * vc0)
         fi[4] -= rate[i] * (mass[i] * vc1)
         fi[5] -= rate[i] * (mass[i] * vc2)
@@ -163,16 +163,15 @@ def floor_wrenches(rows, target, centres, radii, com, k, c, friction, height, R,
     depth ``height - x_z``, the normal force ``max(0, k d - c v_z)`` while it
     touches and the friction ``-min(mu F_n, c |v_t|) v_t / |v_t|`` (``friction``
     and ``height`` per point)."""
-    x, F = np.empty(3), np.empty(3)
     for m in range(rows.shape[0]):
         b = rows[m]
         Rb, cm = R[b], centres[m]
-        for r in range(3):
-            x[r] = p[b, r] + Rb[r, 0] * cm[0] + Rb[r, 1] * cm[1] + Rb[r, 2] * cm[2]
-        x[2] -= radii[m]
-        depth = height[m] - x[2]
+        x0 = p[b, 0] + Rb[0, 0] * cm[0] + Rb[0, 1] * cm[1] + Rb[0, 2] * cm[2]
+        x1 = p[b, 1] + Rb[1, 0] * cm[0] + Rb[1, 1] * cm[1] + Rb[1, 2] * cm[2]
+        x2 = p[b, 2] + Rb[2, 0] * cm[0] + Rb[2, 1] * cm[1] + Rb[2, 2] * cm[2] - radii[m]
+        depth = height[m] - x2
         wb, vb = w[b], v[b]
-        e0, e1, e2 = x[0] - p[b, 0], x[1] - p[b, 1], x[2] - p[b, 2]
+        e0, e1, e2 = x0 - p[b, 0], x1 - p[b, 1], x2 - p[b, 2]
         xd0 = vb[0] + wb[1] * e2 - wb[2] * e1
         xd1 = vb[1] + wb[2] * e0 - wb[0] * e2
         xd2 = vb[2] + wb[0] * e1 - wb[1] * e0
@@ -180,8 +179,7 @@ def floor_wrenches(rows, target, centres, radii, com, k, c, friction, height, R,
         speed = np.sqrt(xd0 * xd0 + xd1 * xd1)
         Ft = min(friction[m] * Fn, c[m] * speed)
         g = Ft / max(speed, 1e-12)
-        F[0], F[1], F[2] = -g * xd0, -g * xd1, Fn
-        _add_point_force(x, F, p[b], Rb, com[m], f[target[m]])
+        _add_point_force(x0, x1, x2, -g * xd0, -g * xd1, Fn, p[b], Rb, com[m], f[target[m]])
 
 
 @inlined
@@ -206,9 +204,9 @@ def limit_torques(h_dof, h_q, low, high, h_k, h_c, b_q, b_v, angle, b_k, b_c, q,
         rate = qd[h_dof[i]]
         outward = rate if e * rate > 0 else 0.0
         tau[h_dof[i]] -= h_k[i] * e + h_c[i] * outward
-    r = np.empty(3)
     for i in range(b_q.shape[0]):
-        quaternion_log(q[b_q[i]:b_q[i] + 4], r)
+        iq = b_q[i]
+        r = quaternion_log(q[iq], q[iq + 1], q[iq + 2], q[iq + 3])
         n = np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
         e = max(n - angle[i], 0.0)
         if e > 0:
@@ -227,7 +225,8 @@ def _rows(k):
 @inlined
 def _point_wrenches(x, F, p, R, com, f):
     for i in range(x.shape[0]):
-        _add_point_force(x[i], F[i], p[i], R[i], com[i], f[i])
+        _add_point_force(x[i, 0], x[i, 1], x[i, 2], F[i, 0], F[i, 1], F[i, 2], p[i], R[i], com[i],
+                         f[i])
 
 
 def point_wrenches(model, bodies, R, p, x, F):
@@ -780,7 +779,7 @@ class ForceTables:
                 *pulses, *self.limits)
 
 
-@kernel
+@pass_kernel
 def apply_forces(F, e, t, R, p, w, v, q, qd, f, tau):
     """Every built-in element of the tables ``F`` (:meth:`ForceTables.arrays`) at
     evaluation ``e`` and time ``t``: wrenches into ``f`` (nb, 6), joint forces into

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._linalg import as_input, inlined, kernel, quaternion_step
+from ._linalg import as_input, inlined, kernel, pass_kernel, quaternion_step
 from .dca import dynamics_pass
 from .errors import InputError
 from .forces import apply_forces, world_velocities
@@ -129,14 +129,14 @@ def get_integrator(name):
 
 # --- whole steps in compiled code ------------------------------------------------------
 
-@kernel
+@pass_kernel
 def accelerations(js, tree, bodies, F, e, t, q, qd, kin, work, states, f_ext, tau, out):
     """``qdd`` (into ``out``) at ``(t, q, qd)`` with the forces of the tables ``F``
     (:class:`~vdad.forces.ForceTables`) at evaluation ``e``: kinematics, forces
     from every body's state (world axes, as :class:`~vdad.forces.BodyStates`), the
     DCA."""
-    R_rel, p_rel, S, T, W, R, p, v, c = kin
-    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c)
+    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch = kin
+    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch)
     w, vo = states[0], states[1]
     world_velocities(R, v, w, vo)
     for i in range(R.shape[0]):

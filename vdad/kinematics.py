@@ -36,6 +36,7 @@ from ._linalg import (
     mm3,
     motion_to_child,
     mv3,
+    pass_kernel,
     quaternion_rotation,
 )
 
@@ -238,6 +239,7 @@ class Kinematics:
     R [k,3,3], p [k,3]: child body frames in world coordinates.
     v [k,6]: child body velocities in body coordinates at the body origin.
     c [k,6]: velocity-product term c_J of (T4), child frame.
+    R3 [3,3,3], v6 [5,6], work [3,6,6]: scratch of the pass.
     """
 
     R_rel: np.ndarray
@@ -249,17 +251,22 @@ class Kinematics:
     p: np.ndarray
     v: np.ndarray
     c: np.ndarray
+    R3: np.ndarray
+    v6: np.ndarray
+    work: np.ndarray
 
     @classmethod
     def empty(cls, js):
         """Work arrays for ``js``, with its constant ``S, T, W``."""
         k = js.k
         return cls(np.zeros((k, 3, 3)), np.zeros((k, 3)), js.S.copy(), js.T.copy(), js.W.copy(),
-                   np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros((k, 6)), np.zeros((k, 6)))
+                   np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros((k, 6)), np.zeros((k, 6)),
+                   np.zeros((3, 3, 3)), np.zeros((5, 6)), np.zeros((3, 6, 6)))
 
     @property
     def arrays(self) -> tuple:
-        return (self.R_rel, self.p_rel, self.S, self.T, self.W, self.R, self.p, self.v, self.c)
+        return (self.R_rel, self.p_rel, self.S, self.T, self.W, self.R, self.p, self.v, self.c,
+                self.R3, self.v6, self.work)
 
 
 # --- kernels: one joint each -------------------------------------------------------------
@@ -275,7 +282,7 @@ def stage_motion(s, stage_kind, stage_axis, stage_anchor, stage_ref, stage_q, q,
         if kind == 0:
             axis_angle_rotation(stage_axis[s], q[iq] - stage_ref[s], Rs)
         else:
-            quaternion_rotation(q[iq:iq + 4], Rs)
+            quaternion_rotation(q, iq, Rs)
         for i in range(3):
             ps[i] = a[i] - (Rs[i, 0] * a[0] + Rs[i, 1] * a[1] + Rs[i, 2] * a[2])
         return
@@ -287,15 +294,15 @@ def stage_motion(s, stage_kind, stage_axis, stage_anchor, stage_ref, stage_q, q,
 
 @inlined
 def joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
-                    stage_ref, stage_q, q, R_rel, p_rel, tmp):
+                    stage_ref, stage_q, q, R_rel, p_rel, Rs, Rn, ps):
     """Child frame of joint ``j`` in its parent's frame (theory §3): the joint frame
-    ``(R0, p0)`` followed by each stage's motion. ``tmp`` (>= 3, 6, 6): scratch."""
+    ``(R0, p0)`` followed by each stage's motion. ``Rs``, ``Rn`` (3, 3), ``ps``
+    (3,): scratch."""
     R, p = R_rel[j], p_rel[j]
     for r in range(3):
         p[r] = p0[j, r]
         for c in range(3):
             R[r, c] = R0[j, r, c]
-    Rs, Rn, ps = tmp[0, :3, :3], tmp[1, :3, :3], tmp[2, 0, :3]
     for s in range(stage0[j], stage0[j] + n_stages[j]):
         stage_motion(s, stage_kind, stage_axis, stage_anchor, stage_ref, stage_q, q, Rs, ps)
         for r in range(3):                       # (R, p) <- (R, p) (R_s, p_s)
@@ -308,20 +315,26 @@ def joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_a
 
 @inlined
 def joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, stage_ref,
-                   stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W):
+                   stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W, R3, v6, work):
     """``S = [X_{child<-r} s_r]`` of a multi-stage joint ``j`` ((J1),
     ``docs/joints.md``) and its complements ``T``, ``W`` (T5). The transform from
     each post-stage frame to the child frame is the product of the later stages,
-    accumulated from the last stage back."""
-    sufR = np.eye(3)                              # child frame in post-stage-r frame
-    sufp = np.zeros(3)
-    Rs, Rn = np.empty((3, 3)), np.empty((3, 3))
-    ps, t, col = np.empty(3), np.empty(3), np.empty(6)
+    accumulated from the last stage back. ``R3`` (>= 3, 3, 3), ``v6`` (>= 5, 6),
+    ``work`` (>= 3, 6, 6): scratch."""
+    sufR, Rs, Rn = R3[0], R3[1], R3[2]   # child frame in post-stage-r frame
+    sufp, ps, t, col, s_r = v6[0], v6[1], v6[2], v6[3], v6[4]
+    for r in range(3):
+        sufp[r] = 0.0
+        for m in range(3):
+            sufR[r, m] = 1.0 if r == m else 0.0
     Sj = S[j]
     for s in range(stage0[j] + n_stages[j] - 1, stage0[j] - 1, -1):
         for c in range(3 if stage_kind[s] >= 2 else 1):   # X_{child<-r} s_r by columns
-            motion_to_child(sufR, sufp, s_pad[s, :, c], col)
-            Sj[:, stage_v[s] - v_start[j] + c] = col
+            for i in range(6):
+                s_r[i] = s_pad[s, i, c]
+            motion_to_child(sufR, sufp, s_r, col)
+            for i in range(6):
+                Sj[i, stage_v[s] - v_start[j] + c] = col[i]
         stage_motion(s, stage_kind, stage_axis, stage_anchor, stage_ref, stage_q, q, Rs, ps)
         mv3(Rs, sufp, t)                          # suffix <- (R_s, p_s) suffix
         for i in range(3):
@@ -330,7 +343,7 @@ def joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, st
         for r in range(3):
             for m in range(3):
                 sufR[r, m] = Rn[r, m]
-    complement(Sj, nv_joint[j], T[j], W[j], np.empty((3, 6, 6)))
+    complement(Sj, nv_joint[j], T[j], W[j], work)
 
 
 @inlined
@@ -384,25 +397,25 @@ def body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_
     cross_motion_add(vj, u, cj)
 
 
-@kernel
-def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c):
+@pass_kernel
+def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work):
     """Theory §3 for every joint of the set ``js`` (:attr:`JointSet.arrays`), parents
     first: placement, subspaces of multi-stage joints, world pose and, if
     ``velocities``, the body velocity and ``c_J``."""
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
      stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
-    tmp = np.empty((3, 6, 6))
     for idx in range(order.shape[0]):
         j = order[idx]
         joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
-                        stage_ref, stage_q, q, R_rel, p_rel, tmp)
+                        stage_ref, stage_q, q, R_rel, p_rel, R3[1], R3[2], v6[1])
         if n_stages[j] > 1:
             joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
-                           stage_ref, stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W)
+                           stage_ref, stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W,
+                           R3, v6, work)
         body_pose(j, parent, R_rel, p_rel, R, p)
         if velocities:
             body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_joint,
-                          R_rel, p_rel, S, qd, v, c, tmp)
+                          R_rel, p_rel, S, qd, v, c, work)
 
 
 # --- the public functions ------------------------------------------------------------------
@@ -435,7 +448,7 @@ def joint_kinematics(js, q):
     return kin.R_rel, kin.p_rel, kin.S, kin.T, kin.W
 
 
-@kernel
+@pass_kernel
 def _poses(order, parent, R_rel, p_rel, R, p):
     for idx in range(order.shape[0]):
         body_pose(order[idx], parent, R_rel, p_rel, R, p)
