@@ -132,6 +132,15 @@ def as_input(a):
     return np.array(a, dtype=float, order="C")
 
 
+@inlined
+def finite(x):
+    """Whether every entry of the C-contiguous array ``x`` is finite."""
+    for v in x.flat:
+        if not np.isfinite(v):
+            return False
+    return True
+
+
 # --- 6x6 and 6-vector products ---------------------------------------------------------
 
 @inlined

@@ -36,6 +36,7 @@ from numba import prange
 
 from ._linalg import (
     cholesky,
+    finite,
     inlined,
     inverse_inertia_transpose,
     kernel,
@@ -522,7 +523,9 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
 @kernel
 def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     """One DCA evaluation: the kinematics of ``(q, qd)`` (theory §3), then
-    :func:`dynamics_pass`."""
+    :func:`dynamics_pass`. Returns whether the inputs and ``qdd`` are all finite
+    (the callers' checks, at no cost)."""
     R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch = kin
     kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch)
     dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
+    return finite(q) and finite(qd) and finite(tau_in) and finite(f_ext) and finite(work[7])

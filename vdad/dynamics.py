@@ -73,14 +73,28 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     :class:`~vdad.dca.DCAData` work arrays of that tree.
     """
     check_model(model)
+    tree = default_tree(model) if tree is None else check_tree(model, tree)
+    data = dca.make_data(tree) if data is None else dca.check_data(tree, data)
+    if (not len(model.ball_q) and _as_given(q, (model.nq,)) and _as_given(qd, (model.nv,))
+            and (tau is None or _as_given(tau, (model.nv,)))
+            and (f_ext is None or _as_given(f_ext, (model.nb, 6)))
+            and _evaluate(model, q, qd, tau, f_ext, tree, data)):
+        return data.qdd.copy()          # float arrays as the kernels take them, all finite
     q = check_configuration(model, "q", q)
     qd = check_vector("qd", qd, model.nv)
     tau = check_vector("tau", tau, model.nv, allow_none=True)
     f_ext = check_wrenches(model, f_ext)
-    tree = default_tree(model) if tree is None else check_tree(model, tree)
-    data = dca.make_data(tree) if data is None else dca.check_data(tree, data)
     return check_overflow(model, forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data),
                           qd=qd, tau=tau, f_ext=f_ext)
+
+
+def _as_given(x, shape):
+    """Whether ``x`` is an array the kernels take as it is: float64 of ``shape``,
+    C-contiguous, writable (:func:`~vdad._linalg.as_input`); its values are
+    checked by the pass itself, and the full checks run only if that finds a
+    non-finite number."""
+    return (type(x) is np.ndarray and x.dtype == np.float64 and x.shape == shape
+            and x.flags.c_contiguous and x.flags.writeable)
 
 
 def check_overflow(model, qdd, **inputs):
@@ -100,12 +114,18 @@ def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
     """:func:`forward_dynamics` of inputs already checked (q (nq,) and qd (nv,)
     finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``tree`` of
     ``model`` and its ``data``): what a simulator calls every step."""
-    with compiling(dca.dca_pass):
-        dca.dca_pass(plan(model).arrays, tree.arrays, dca.body_arrays(model), as_input(q),
-                     as_input(qd), _NO_TAU if tau is None else as_input(tau),
-                     _NO_WRENCH if f_ext is None else as_input(f_ext), data.kin.arrays,
-                     data.arrays)
+    _evaluate(model, q, qd, tau, f_ext, tree, data)
     return data.qdd.copy()
+
+
+def _evaluate(model, q, qd, tau, f_ext, tree, data):
+    """:func:`~vdad.dca.dca_pass` into ``data``; whether the inputs and ``qdd``
+    are all finite."""
+    with compiling(dca.dca_pass):
+        return dca.dca_pass(plan(model).arrays, tree.arrays, dca.body_arrays(model),
+                            as_input(q), as_input(qd), _NO_TAU if tau is None else as_input(tau),
+                            _NO_WRENCH if f_ext is None else as_input(f_ext), data.kin.arrays,
+                            data.arrays)
 
 
 _NO_TAU, _NO_WRENCH = np.zeros(0), np.zeros((0, 6))
