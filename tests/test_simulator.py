@@ -1,5 +1,8 @@
 """Integrators and the Simulator (theory §8, checks 5 and 6)."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from strategies import random_chain, random_configuration, with_armature
@@ -318,3 +321,20 @@ def test_compiled_steps_stop_at_the_diverging_step():
     with pytest.raises(vdad.SimulationError, match=r"step (\d+) .*joint 'hinge' turns"):
         sim.step(100)
     assert 1 < sim.step_count < 10 and abs(sim.qd[0]) * 1e-3 <= np.pi
+
+
+def test_step_loop_loaded_from_the_cache_in_a_fresh_process():
+    """A process whose first compiled call is the step loop, loaded from numba's
+    cache (compiled by this session's earlier steps), runs it: the loop links the
+    parallel forest pass, whose threading layer numba would not start on that load
+    (numba #8578; it crashed before vdad started it in ``_linalg.compiling``)."""
+    scene = pendulum(3)
+    expected = scene.simulator().step(5).q
+    code = ("import vdad.scenes as s; import numpy as np; "
+            "print(np.array2string(s.pendulum(3).simulator().step(5).q, precision=17))")
+    for _ in range(2):                 # the first may compile; the second loads
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              timeout=600)
+        assert done.returncode == 0, done.stderr
+    q = np.array(done.stdout.strip().strip("[]").split(), float)
+    np.testing.assert_array_equal(q, expected)

@@ -21,23 +21,26 @@ import sys
 import threading
 from pathlib import Path
 
+import numba
 import numpy as np
 from numba import config, njit
 
-#: decorator of the passes that Python calls (numba's on-disk cache; a division
-#: by zero gives inf or NaN, which the callers' checks report, instead of raising
-#: inside a kernel) ...
-kernel = njit(cache=True, error_model="numpy")
-#: ... of the loops over nodes and joints, which take every array they need (no
-#: allocation) and run without numba's reference counting: with it, every view
-#: (``Phi[k]``) and every array handed to an inlined kernel costs an atomic
-#: increment and decrement, which LLVM cannot prune across a kernel's branches and
-#: loops, more than the arithmetic of a joint (3.2x on the kinematics pass, 1.5x on
-#: the DCA's; docs/design.md, "The compiled core"). The arrays are the caller's,
-#: alive for the whole call ...
+#: decorator of the compiled functions that allocate (numba's on-disk cache; a
+#: division by zero gives inf or NaN, which the callers' checks report, instead of
+#: raising inside a kernel; numba's runtime set explicitly, since a compiled
+#: function otherwise inherits it from the first caller that compiles it) ...
+kernel = njit(cache=True, error_model="numpy", _nrt=True)
+#: ... of the passes over nodes and joints and their drivers, which take every
+#: array they need (no allocation) and run without numba's reference counting:
+#: with it, every view (``Phi[k]``) and every array handed to an inlined kernel
+#: costs an atomic increment and decrement, which LLVM cannot prune across a
+#: kernel's branches and loops, more than the arithmetic of a joint (3.2x on the
+#: kinematics pass), and a call from Python converts each array argument (2.7 µs
+#: for the DCA's 70 instead of 5.5). The arrays are the caller's, alive for the
+#: whole call (docs/design.md, "The compiled core") ...
 pass_kernel = njit(cache=True, error_model="numpy", _nrt=False)
 #: ... of passes over independent subtrees that numba runs on its threads ...
-parallel_kernel = njit(cache=True, error_model="numpy", parallel=True)
+parallel_kernel = njit(cache=True, error_model="numpy", parallel=True, _nrt=True)
 #: ... and of the per-node and per-joint kernels and the small products below,
 #: which numba inlines into the passes that call them: a call between compiled
 #: functions is not inlined by LLVM and costs ~10 ns per array argument, more
@@ -69,10 +72,15 @@ def compiling(dispatcher):
     """A context for a call of the compiled ``dispatcher``: on its first call in a
     process (when numba still has to load or compile it), :data:`NOTICE` is printed
     once on stderr if the call takes more than a second (compiling takes a minute,
-    loading from the cache a fraction of a second)."""
+    loading from the cache a fraction of a second). It also starts numba's
+    threading layer, which a kernel loaded from the cache needs if it calls a
+    parallel one (:func:`vdad.dca.forest_passes`) and which numba starts only for
+    the parallel kernel itself (numba issues #8578, #9938): without it, the step
+    loop loaded from the cache in a fresh process crashed."""
     if dispatcher in _called:
         return _NOTHING
     _called.add(dispatcher)
+    numba.get_num_threads()
     return _announce()
 
 
@@ -162,6 +170,16 @@ def mv6(A, x, out):
         for k in range(6):
             s += A[i, k] * x[k]
         out[i] = s
+
+
+@inlined
+def mv6_add(A, x, s, out):
+    """``out += s A x`` (6,)."""
+    for i in range(6):
+        acc = 0.0
+        for k in range(6):
+            acc += A[i, k] * x[k]
+        out[i] += s * acc
 
 
 @inlined

@@ -191,7 +191,8 @@ class AssemblyTree:
     internal nodes), ``up`` (parent node of every node, -1 at the roots),
     ``top`` (top body of every node: the body whose parent is outside it; -1 when
     the node holds a ground leaf), ``n_ports`` (per node; ``max_ports``), ``block_base``,
-    ``slot_base`` (per node: its first block and slot), ``slot_joint``,
+    ``slot_base`` (per node: its first block and slot), ``pair_base``, ``n_pairs``
+    (the compiled DCA's store of the blocks ``a <= c`` only, ``docs/design.md``), ``slot_joint``,
     ``slot_side`` (per slot: its port), ``port_A``, ``port_B`` (per internal
     node: where its joint's port is in A's and B's ports), ``slot_child``,
     ``slot_index``, ``slot_sign`` (per slot of an internal node: the child the
@@ -304,18 +305,20 @@ class AssemblyTree:
         n_nodes = nb + len(self.joint)
         # storage: blocks P^2 and slots P for every body leaf and internal node
         block_base = np.zeros(n_nodes, int)
+        pair_base = np.zeros(n_nodes, int)
         slot_base = np.zeros(n_nodes, int)
-        nblk, nslt = 2, 2
+        nblk, npair, nslt = 2, 0, 2
         self.post = np.array(depth_first(nb, self.left, self.right), np.int64)
         ends = np.flatnonzero(self.up[self.post] < 0) + 1       # after each root
         self.segments = np.concatenate([[0], ends]).astype(np.int64)
         for n in self.post:                 # stored in the order the passes visit them
             P = len(self.ports[n])
-            block_base[n], slot_base[n] = nblk, nslt
+            block_base[n], pair_base[n], slot_base[n] = nblk, npair, nslt
             nblk += P * P
+            npair += P * (P + 1) // 2
             nslt += P
-        self.n_blocks, self.n_slots = nblk, nslt
-        self.block_base, self.slot_base = block_base, slot_base
+        self.n_blocks, self.n_pairs, self.n_slots = nblk, npair, nslt
+        self.block_base, self.pair_base, self.slot_base = block_base, pair_base, slot_base
         self.n_ports = np.array([len(p) for p in self.ports], int)
         self.max_ports = int(self.n_ports.max())
         self.slot_joint = np.full(nslt, nj)      # (joint, side) of every port slot
@@ -430,11 +433,11 @@ class AssemblyTree:
     def arrays(self) -> tuple:
         """The arrays the compiled DCA passes (:mod:`vdad.dca`) read, as one tuple:
         ``left, right, joint, port_A, port_B`` per internal node, ``n_ports,
-        block_base, slot_base`` per node, ``slot_joint, slot_side, slot_child,
+        pair_base, slot_base`` per node, ``slot_joint, slot_side, slot_child,
         slot_index, slot_sign`` per slot, ``post``, ``segments`` (int64)."""
         return tuple(np.ascontiguousarray(a, np.int64) for a in (
             self.left, self.right, self.joint, self.port_A, self.port_B, self.n_ports,
-            self.block_base, self.slot_base, self.slot_joint, self.slot_side, self.slot_child,
+            self.pair_base, self.slot_base, self.slot_joint, self.slot_side, self.slot_child,
             self.slot_index, self.slot_sign, self.post, self.segments))
 
     def __repr__(self):

@@ -17,8 +17,10 @@ transform between its two sides and every quantity is translation-invariant
 (theory §1).
 
 Storage (:class:`~vdad.assembly.AssemblyTree`): node ``n`` with ``P`` ports owns
-the blocks ``Phi[block_base[n] + a P + c]`` (6, 6) and the slots
-``b[slot_base[n] + a]`` (6,); a ground leaf has none (``Phi = 0``, ``b = 0``).
+the blocks ``Phi_ac``, ``a <= c``, at ``Phi[pair_base[n] + pair_offset(P, a, c)]``
+(6, 6; ``Phi_ca = Phi_ac^T`` is not stored) and the slots ``b[slot_base[n] + a]``
+(6,); a ground leaf has none (``Phi = 0``, ``b = 0``); :func:`node_blocks` gives a
+node's whole ``Phi``.
 Signed column blocks: for a port ``a`` of ``C`` taken from child ``X`` (``A`` or
 ``B``), ``G_a = s_a Phi^X_{a j_X}`` with ``s_a = -1`` on ``alpha`` and ``+1`` on
 ``beta``. Then (T11)-(T12) read ``Phi^C_{ac} = Phi^X_{ac} [same child] - G_a Y
@@ -45,6 +47,7 @@ from ._linalg import (
     mmt6_add_symmetric,
     mtv6_add,
     mv6,
+    mv6_add,
     parallel_kernel,
     pass_kernel,
     port_product,
@@ -63,7 +66,7 @@ class DCAData:
     brackets), allocated once by :func:`make_data` and reused.
 
     kin: the :class:`~vdad.kinematics.Kinematics` of the state.
-    Phi [n_blocks, 6, 6], b [n_slots, 6]: block stores of the tree.
+    Phi [n_pairs, 6, 6], b [n_slots, 6]: block stores of the tree (blocks ``a <= c``).
     Y, Wm [nb, 6, 6], beta, gamma [nb, 6]: per internal node, the intermediates
     kept for the top-down pass. f_J [nb, 6]: joint wrenches; qdd [nv]:
     joint accelerations; tau [nv]: the joint forces of the last evaluation
@@ -96,7 +99,7 @@ def make_data(tree) -> DCAData:
     model = tree.model
     nb, P = model.nb, tree.max_ports
     z = np.zeros
-    return DCAData(Kinematics.empty(plan(model)), z((tree.n_blocks, 6, 6)), z((tree.n_slots, 6)),
+    return DCAData(Kinematics.empty(plan(model)), z((tree.n_pairs, 6, 6)), z((tree.n_slots, 6)),
                    z((nb, 6, 6)), z((nb, 6, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(model.nv),
                    z(model.nv), z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)))
 
@@ -108,12 +111,27 @@ def check_data(tree, data):
         raise InputError(f"data must be vdad.dca.DCAData from make_data(tree), got "
                          f"{type(data).__name__}")
     model = tree.model
-    if (len(data.Phi) != tree.n_blocks or len(data.b) != tree.n_slots
+    if (len(data.Phi) != tree.n_pairs or len(data.b) != tree.n_slots
             or len(data.f_J) != model.nb or len(data.qdd) != model.nv
             or len(data.X) < tree.max_ports):
         raise InputError(f"data was allocated for another assembly tree than this one (of "
                          f"model {model.name!r}); allocate it with make_data(tree)")
     return data
+
+
+def node_blocks(tree, data, node):
+    """``Phi`` (6 P, 6 P) of ``node`` (a body or ``nb +`` an internal index) with
+    its ``P`` ports in the order of ``tree.ports[node]``, from the last evaluation
+    into ``data``: the inverse articulated inertia of the sub-assembly seen at its
+    ports (theory (T1))."""
+    P, base = int(tree.n_ports[node]), int(tree.pair_base[node])
+    out = np.zeros((6 * P, 6 * P))
+    for a in range(P):
+        for c in range(a, P):
+            block = data.Phi[base + pair_offset(P, a, c)]
+            out[6 * a:6 * a + 6, 6 * c:6 * c + 6] = block
+            out[6 * c:6 * c + 6, 6 * a:6 * a + 6] = block.T
+    return out
 
 
 @lru_cache(maxsize=64)
@@ -168,11 +186,11 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
     port is the body frame; the port of a child joint is that joint's child frame.
     ``X``, ``Q`` (>= ports, 6, 6): ``X_h`` and ``Ibar^-1 X_h^T``; ``tmp`` (>= 3, 6,
     6): scratch."""
-    (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     mass, com, inertia, Iinv, gravity = bodies[0], bodies[1], bodies[2], bodies[3], bodies[4]
     R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
-    P, s0, k0 = n_ports[i], slot_base[i], block_base[i]
+    P, s0 = n_ports[i], slot_base[i]
     m, c, I, Ii = mass[i], com[i], inertia[i], Iinv[i]
     eye, zero = tmp[2, :3, :3], tmp[2, 3, :3]
     for r in range(3):
@@ -186,15 +204,9 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
         else:
             port_transform(R_rel[j], p_rel[j], c, Xh)
         inverse_inertia_transpose(Xh, Ii, m, Q[h])
-    for h in range(P):                                           # (T2), Phi_kh = Phi_hk^T
+    for h in range(P):                                           # (T2), h <= k
         for k in range(h, P):
-            B = Phi[k0 + h * P + k]
-            port_product(X[h], Q[k], B)
-            if k > h:
-                Bt = Phi[k0 + k * P + h]
-                for r in range(6):
-                    for s in range(6):
-                        Bt[s, r] = B[r, s]
+            port_product(X[h], Q[k], Phi[pair_base[i] + pair_offset(P, h, k)])
     # (T3): f - bias at the com, body axes: (n - w × I w; m R^T g + f - m w × v_c)
     w, Rb = v[i, :3], R[i]
     vc0 = v[i, 3] + w[1] * c[2] - w[2] * c[1]
@@ -350,12 +362,13 @@ def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, tmp):
 
 
 @inlined
-def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamma, GY, tmp):
+def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamma, G, GY,
+                  tmp):
     """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
     ``B`` joined by joint ``j``, theory (T6)-(T12). Keeps ``Y``, ``W_m``,
-    ``beta``, ``gamma`` of the node (row ``i``) for :func:`solve_node`. ``GY`` (max ports, 6, 6),
-    ``tmp`` (>= 5, 6, 6): scratch."""
-    (left, right, joint, port_A, port_B, n_ports, block_base, slot_base, slot_joint,
+    ``beta``, ``gamma`` of the node (row ``i``) for :func:`solve_node`. ``G``,
+    ``GY`` (max ports, 6, 6), ``tmp`` (>= 5, 6, 6): scratch."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint = js[6], js[7]
     T, W, c_J = kin[3], kin[4], kin[8]
@@ -363,13 +376,13 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamm
     jA, jB = port_A[i], port_B[i]
     d = nv_joint[j]
     Wj, Yj, Wmj, bj, gj = W[j], Y[i], Wm[i], beta[i], gamma[i]
-    kB, sB = block_base[B] + jB * n_ports[B] + jB, slot_base[B] + jB
+    kB, sB = pair_base[B] + pair_offset(n_ports[B], jB, jB), slot_base[B] + jB
     for r in range(6):                                          # (T6), (T8)
         gj[r] = b[sB, r] - c_J[j, r]
         for s in range(6):
             Wmj[r, s] = Phi[kB, r, s]
     if A >= 0:
-        kA, sA = block_base[A] + jA * n_ports[A] + jA, slot_base[A] + jA
+        kA, sA = pair_base[A] + pair_offset(n_ports[A], jA, jA), slot_base[A] + jA
         for r in range(6):
             gj[r] -= b[sA, r]
             for s in range(6):
@@ -380,50 +393,56 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamm
     else:
         articulated_inverse(Wmj, Tj, 6 - d, Yj, WT, K, Z)
     joint_inputs(Wmj, Yj, Wj, d, v_start[j], tau, armature, gj, bj, tmp)  # (T9), (A1)-(A2)
-    # (T11)-(T12) over C's ports a, c: G_a = s_a Phi^X_{a j_X}, GY_a = Phi^X_{a j_X} Y
-    P, s0, k0 = n_ports[C], slot_base[C], block_base[C]
+    # (T11)-(T12) over C's ports a, c: G_a = s_a Phi^X_{a j_X}, kept unsigned in G[a]
+    P, s0 = n_ports[C], slot_base[C]
     for a in range(P):
-        Ga, ba = Phi[column_block(s0 + a, A, jA, jB, tree)], b[s0 + a]
-        mm6(Ga, Yj, GY[a])
         X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]
-        mv6(Ga, bj, ba)                                          # (T12)
+        copy_block(Phi, pair_base[X], n_ports[X], ia, jA if X == A else jB, G[a])
+        mm6(G[a], Yj, GY[a])
+        ba = b[s0 + a]
+        mv6(G[a], bj, ba)                                        # (T12)
         for r in range(6):
             ba[r] = b[slot_base[X] + ia, r] + sa * ba[r]
-    for a in range(P):                                           # (T11)
+    for a in range(P):                                           # (T11), a <= c
         X, ia = slot_child[s0 + a], slot_index[s0 + a]
         for cc in range(a, P):
-            Gc = Phi[column_block(s0 + cc, A, jA, jB, tree)]
-            Cac = Phi[k0 + a * P + cc]
-            if slot_child[s0 + cc] == X:
-                kX = block_base[X] + ia * n_ports[X] + slot_index[s0 + cc]
-                if cc == a:
-                    symmetric_part(Phi[kX], Cac)
-                else:
-                    for r in range(6):
-                        for s in range(6):
-                            Cac[r, s] = Phi[kX, r, s]
-            else:
+            Cac = Phi[pair_base[C] + pair_offset(P, a, cc)]
+            if slot_child[s0 + cc] != X:
                 for r in range(6):
                     for s in range(6):
                         Cac[r, s] = 0.0
+            elif cc == a:
+                symmetric_part(Phi[pair_base[X] + pair_offset(n_ports[X], ia, ia)], Cac)
+            else:
+                copy_block(Phi, pair_base[X], n_ports[X], ia, slot_index[s0 + cc], Cac)
             sign = -slot_sign[s0 + a] * slot_sign[s0 + cc]       # - G_a Y G_c^T
             if cc == a:
-                mmt6_add_symmetric(GY[a], Gc, sign, Cac)
+                mmt6_add_symmetric(GY[a], G[cc], sign, Cac)
             else:
-                mmt6_add(GY[a], Gc, sign, Cac)
-                Cca = Phi[k0 + cc * P + a]
-                for r in range(6):
-                    for s in range(6):
-                        Cca[s, r] = Cac[r, s]
+                mmt6_add(GY[a], G[cc], sign, Cac)
 
 
 @inlined
-def column_block(s, A, jA, jB, tree):
-    """The block ``Phi^X_{a j_X}`` of the port in slot ``s`` of a node joining ``A``
-    and ``B`` (``G_a`` is it times ``slot_sign[s]``)."""
-    n_ports, block_base, slot_child, slot_index = tree[5], tree[6], tree[10], tree[11]
-    X = slot_child[s]
-    return block_base[X] + slot_index[s] * n_ports[X] + (jA if X == A else jB)
+def pair_offset(P, a, c):
+    """Where a node of ``P`` ports stores its block ``Phi_ac``, ``a <= c``, after
+    its first (``pair_base``): row by row of the upper triangle."""
+    return a * P - a * (a - 1) // 2 + c - a
+
+
+@inlined
+def copy_block(Phi, base, P, a, c, out):
+    """``out = Phi_ac`` (6, 6) of the node whose blocks start at ``base``, from
+    ``Phi_ca^T`` where ``a > c``."""
+    if a <= c:
+        B = Phi[base + pair_offset(P, a, c)]
+        for r in range(6):
+            for s in range(6):
+                out[r, s] = B[r, s]
+    else:
+        B = Phi[base + pair_offset(P, c, a)]
+        for r in range(6):
+            for s in range(6):
+                out[r, s] = B[s, r]
 
 
 @inlined
@@ -432,26 +451,28 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
     ``C``'s ports (from joints solved before it): ``u = sum_a G_a^T f_a``,
     ``f_J = beta_C - Y u`` (T10), ``qdd = W^T (W_m f_J + u + gamma)`` (T13).
     ``tmp`` (>= 2, 6, 6): scratch."""
-    left, joint, port_A, port_B, n_ports, slot_base = (tree[0], tree[2], tree[3], tree[4],
-                                                      tree[5], tree[7])
-    slot_joint, slot_side = tree[8], tree[9]
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint = js[6], js[7]
     W = kin[4]
     C, j = nb + i, joint[i]
-    slot_sign = tree[12]
     u, t = tmp[0, 0], tmp[0, 1]
     for r in range(6):
         u[r] = 0.0
     s0 = slot_base[C]
-    for a in range(n_ports[C]):                                  # f_a = side f_J[port]
-        k = column_block(s0 + a, left[i], port_A[i], port_B[i], tree)
-        mtv6_add(Phi[k], f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a],
-                 u)
+    for a in range(n_ports[C]):                        # u += s_a Phi^X_{a j_X}^T f_a
+        X, ia = slot_child[s0 + a], slot_index[s0 + a]
+        jX = port_A[i] if X == left[i] else port_B[i]
+        f_a, s = f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a]
+        if ia <= jX:                                   # f_a = side f_J[port]
+            mtv6_add(Phi[pair_base[X] + pair_offset(n_ports[X], ia, jX)], f_a, s, u)
+        else:                                          # stored as Phi_{j_X a}
+            mv6_add(Phi[pair_base[X] + pair_offset(n_ports[X], jX, ia)], f_a, s, u)
     fJ = f_J[j]
-    mv6(Y[i], u, t)                                         # (T10)
+    mv6(Y[i], u, t)                                              # (T10)
     for r in range(6):
         fJ[r] = beta[i, r] - t[r]
-    mv6(Wm[i], fJ, t)                                       # (T13)
+    mv6(Wm[i], fJ, t)                                            # (T13)
     for r in range(6):
         t[r] += u[r] + gamma[i, r]
     Wj = W[j]
@@ -475,7 +496,7 @@ def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm,
             leaf(n, tree, bodies, f_ext, kin, Phi, b, X, GY, tmp)
         else:
             assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, Wm, beta,
-                          gamma, GY, tmp)
+                          gamma, X, GY, tmp)
     for k in range(hi - 1, lo - 1, -1):
         n = post[k]
         if n >= nb:
@@ -520,7 +541,7 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
                        Phi, b, Y, Wm, beta, gamma, f_J, qdd, X, GY, tmp)
 
 
-@kernel
+@pass_kernel
 def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     """One DCA evaluation: the kinematics of ``(q, qd)`` (theory §3), then
     :func:`dynamics_pass`. Returns whether the inputs and ``qdd`` are all finite
