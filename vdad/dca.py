@@ -67,8 +67,9 @@ class DCAData:
 
     kin: the :class:`~vdad.kinematics.Kinematics` of the state.
     Phi [n_pairs, 6, 6], b [n_slots, 6]: block stores of the tree (blocks ``a <= c``).
-    Y, Wm [nb, 6, 6], beta, gamma [nb, 6]: per internal node, the intermediates
-    kept for the top-down pass. f_J [nb, 6]: joint wrenches; qdd [nv]:
+    Y [nb, 6, 6], beta, gamma [nb, 6]: per internal node, the intermediates kept
+    for the top-down pass, with WtWm [nv, 6]: ``W^T W_m`` of each joint, a row per
+    dof (what (T13) needs of ``W_m``). f_J [nb, 6]: joint wrenches; qdd [nv]:
     joint accelerations; tau [nv]: the joint forces of the last evaluation
     (springs, dampers and actuation). X, GY [max ports, 6, 6], tmp [8, 6, 6]:
     scratch.
@@ -78,7 +79,7 @@ class DCAData:
     Phi: np.ndarray
     b: np.ndarray
     Y: np.ndarray
-    Wm: np.ndarray
+    WtWm: np.ndarray
     beta: np.ndarray
     gamma: np.ndarray
     f_J: np.ndarray
@@ -90,7 +91,7 @@ class DCAData:
 
     @property
     def arrays(self) -> tuple:
-        return (self.Phi, self.b, self.Y, self.Wm, self.beta, self.gamma, self.f_J, self.qdd,
+        return (self.Phi, self.b, self.Y, self.WtWm, self.beta, self.gamma, self.f_J, self.qdd,
                 self.tau, self.X, self.GY, self.tmp)
 
 
@@ -100,7 +101,7 @@ def make_data(tree) -> DCAData:
     nb, P = model.nb, tree.max_ports
     z = np.zeros
     return DCAData(Kinematics.empty(plan(model)), z((tree.n_pairs, 6, 6)), z((tree.n_slots, 6)),
-                   z((nb, 6, 6)), z((nb, 6, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(model.nv),
+                   z((nb, 6, 6)), z((model.nv, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(model.nv),
                    z(model.nv), z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)))
 
 
@@ -362,12 +363,13 @@ def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, tmp):
 
 
 @inlined
-def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamma, G, GY,
+def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, G, GY,
                   tmp):
     """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
     ``B`` joined by joint ``j``, theory (T6)-(T12). Keeps ``Y``, ``W_m``,
-    ``beta``, ``gamma`` of the node (row ``i``) for :func:`solve_node`. ``G``,
-    ``GY`` (max ports, 6, 6), ``tmp`` (>= 5, 6, 6): scratch."""
+    ``beta``, ``gamma`` of the node (row ``i``) and ``W^T W_m`` of its joint (rows
+    of its dofs) for :func:`solve_node`. ``G``, ``GY`` (max ports, 6, 6), ``tmp``
+    (>= 6, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint = js[6], js[7]
@@ -375,7 +377,7 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamm
     C, A, B, j = nb + i, left[i], right[i], joint[i]
     jA, jB = port_A[i], port_B[i]
     d = nv_joint[j]
-    Wj, Yj, Wmj, bj, gj = W[j], Y[i], Wm[i], beta[i], gamma[i]
+    Wj, Yj, Wmj, bj, gj = W[j], Y[i], tmp[5], beta[i], gamma[i]
     kB, sB = pair_base[B] + pair_offset(n_ports[B], jB, jB), slot_base[B] + jB
     for r in range(6):                                          # (T6), (T8)
         gj[r] = b[sB, r] - c_J[j, r]
@@ -393,6 +395,12 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, Wm, beta, gamm
     else:
         articulated_inverse(Wmj, Tj, 6 - d, Yj, WT, K, Z)
     joint_inputs(Wmj, Yj, Wj, d, v_start[j], tau, armature, gj, bj, tmp)  # (T9), (A1)-(A2)
+    for k in range(d):                                          # for (T13): W^T W_m
+        for s in range(6):
+            acc = 0.0
+            for r in range(6):
+                acc += Wj[r, k] * Wmj[r, s]
+            WtWm[v_start[j] + k, s] = acc
     # (T11)-(T12) over C's ports a, c: G_a = s_a Phi^X_{a j_X}, kept unsigned in G[a]
     P, s0 = n_ports[C], slot_base[C]
     for a in range(P):
@@ -446,7 +454,7 @@ def copy_block(Phi, base, P, a, c, out):
 
 
 @inlined
-def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
+def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
     """Joint ``j`` of internal node ``C = nb + i`` given the wrenches ``f_a`` on
     ``C``'s ports (from joints solved before it): ``u = sum_a G_a^T f_a``,
     ``f_J = beta_C - Y u`` (T10), ``qdd = W^T (W_m f_J + u + gamma)`` (T13).
@@ -472,19 +480,16 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp):
     mv6(Y[i], u, t)                                              # (T10)
     for r in range(6):
         fJ[r] = beta[i, r] - t[r]
-    mv6(Wm[i], fJ, t)                                            # (T13)
-    for r in range(6):
-        t[r] += u[r] + gamma[i, r]
-    Wj = W[j]
+    Wj = W[j]                                                    # (T13)
     for k in range(nv_joint[j]):
         acc = 0.0
         for r in range(6):
-            acc += Wj[r, k] * t[r]
+            acc += WtWm[v_start[j] + k, r] * fJ[r] + Wj[r, k] * (u[r] + gamma[i, r])
         qdd[v_start[j] + k] = acc
 
 
 @pass_kernel
-def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma,
+def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, beta, gamma,
                    f_J, qdd, X, GY, tmp):
     """The DCA of one root's subtree, ``post[lo:hi]``: the leaves and the
     bottom-up pass node by node in depth-first post-order, then the top-down pass
@@ -495,12 +500,12 @@ def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm,
         if n < nb:
             leaf(n, tree, bodies, f_ext, kin, Phi, b, X, GY, tmp)
         else:
-            assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, Wm, beta,
+            assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, WtWm, beta,
                           gamma, X, GY, tmp)
     for k in range(hi - 1, lo - 1, -1):
         n = post[k]
         if n >= nb:
-            solve_node(n - nb, nb, tree, js, kin, Phi, Y, Wm, beta, gamma, f_J, qdd, tmp)
+            solve_node(n - nb, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
 
 
 #: forests of at least this many bodies run their trees' subtrees in parallel
@@ -508,7 +513,7 @@ PARALLEL_BODIES = 256
 
 
 @parallel_kernel
-def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma, f_J, qdd,
+def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, beta, gamma, f_J, qdd,
                   P):
     """:func:`subtree_passes` of every root's subtree of a forest, in parallel
     (numba threads): each writes only its own nodes' blocks, joints and dofs, and
@@ -517,7 +522,7 @@ def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma,
     for r in prange(segments.shape[0] - 1):
         X, GY, tmp = np.empty((P, 6, 6)), np.empty((P, 6, 6)), np.empty((8, 6, 6))
         subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
-                       Phi, b, Y, Wm, beta, gamma, f_J, qdd, X, GY, tmp)
+                       Phi, b, Y, WtWm, beta, gamma, f_J, qdd, X, GY, tmp)
 
 
 @kernel
@@ -526,19 +531,19 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     ``tau = tau_in - D qd - K d``, then :func:`subtree_passes` of each root's
     subtree (in parallel for forests of :data:`PARALLEL_BODIES` bodies or more);
     ``qdd`` ends in ``work``."""
-    Phi, b, Y, Wm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
     passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
                         q, qd, tau)
     for r in range(tau_in.shape[0]):
         tau[r] += tau_in[r]
     nb, segments = bodies[0].shape[0], tree[14]
     if segments.shape[0] > 2 and nb >= PARALLEL_BODIES:
-        forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, Wm, beta, gamma, f_J, qdd,
+        forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, beta, gamma, f_J, qdd,
                       X.shape[0])
         return
     for r in range(segments.shape[0] - 1):
         subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
-                       Phi, b, Y, Wm, beta, gamma, f_J, qdd, X, GY, tmp)
+                       Phi, b, Y, WtWm, beta, gamma, f_J, qdd, X, GY, tmp)
 
 
 @pass_kernel
