@@ -250,13 +250,7 @@ def articulated_inverse(Wm, T, nT, Y, WT, K, Z):
             for k in range(6):
                 acc += Wm[r, k] * T[k, c]
             WT[r, c] = acc
-    for r in range(nT):
-        for c in range(r, nT):
-            acc = 0.0
-            for k in range(6):
-                acc += T[k, r] * WT[k, c]
-            K[r, c] = acc
-            K[c, r] = acc
+    reduced_inertia(T, WT, nT, K)
     if cholesky(K, nT):
         for col in range(6):                                    # forward substitution
             for r in range(nT):
@@ -272,12 +266,8 @@ def articulated_inverse(Wm, T, nT, Y, WT, K, Z):
                 Y[r, s] = acc
                 Y[s, r] = acc
         return
+    reduced_inertia(T, WT, nT, K)                              # the factor overwrote it
     for r in range(nT):
-        for c in range(nT):
-            acc = 0.0
-            for k in range(6):
-                acc += T[k, r] * WT[k, c]
-            K[r, c] = acc
         for c in range(6):
             Z[r, c] = T[c, r]
     if not solve_general(K, Z, nT):
@@ -290,6 +280,19 @@ def articulated_inverse(Wm, T, nT, Y, WT, K, Z):
                 acc += T[r, k] * Z[k, s]
             WT[r, s] = acc
     symmetric_part(WT, Y)
+
+
+@inlined
+def reduced_inertia(T, WT, nT, K):
+    """``K = T^T W_m T`` (nT, nT) of (T7) from ``WT = W_m T``: the upper triangle
+    computed, the lower one copied from it."""
+    for r in range(nT):
+        for c in range(r, nT):
+            acc = 0.0
+            for k in range(6):
+                acc += T[k, r] * WT[k, c]
+            K[r, c] = acc
+            K[c, r] = acc
 
 
 @inlined
@@ -551,7 +554,6 @@ def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     """One DCA evaluation: the kinematics of ``(q, qd)`` (theory §3), then
     :func:`dynamics_pass`. Returns whether the inputs and ``qdd`` are all finite
     (the callers' checks, at no cost)."""
-    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch = kin
-    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch)
+    kinematics_pass(js, q, qd, True, *kin)
     dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
     return finite(q) and finite(qd) and finite(tau_in) and finite(f_ext) and finite(work[7])

@@ -135,9 +135,8 @@ def accelerations(js, tree, bodies, F, e, t, q, qd, kin, work, states, f_ext, ta
     (:class:`~vdad.forces.ForceTables`) at evaluation ``e``: kinematics, forces
     from every body's state (world axes, as :class:`~vdad.forces.BodyStates`), the
     DCA."""
-    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch = kin
-    kinematics_pass(js, q, qd, True, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, scratch)
-    w, vo = states[0], states[1]
+    kinematics_pass(js, q, qd, True, *kin)
+    R, p, v, w, vo = kin[5], kin[6], kin[7], states[0], states[1]
     world_velocities(R, v, w, vo)
     for i in range(R.shape[0]):
         for r in range(6):
