@@ -118,6 +118,10 @@ def test_port_inverse_inertia_is_J_Minv_JT():
         assert relative_error(dca.node_blocks(tree, data, node), expected) < tolerance(sub, q_sub)
         checked += 1
     assert checked >= 4
+    for bad, message in ((tree.n_nodes, "node must be below the tree's"),
+                         (-1, "node must be an integer >= 0"), (1.5, "node must be an integer")):
+        with pytest.raises(vdad.InputError, match=message):
+            dca.node_blocks(tree, data, bad)
 
 
 def _bodies_of(tree, node):

@@ -56,6 +56,7 @@ from ._linalg import (
     solve_general,
     symmetric_part,
 )
+from .checks import check_count
 from .errors import InputError
 from .kinematics import Kinematics, kinematics_pass, plan
 
@@ -125,6 +126,11 @@ def node_blocks(tree, data, node):
     its ``P`` ports in the order of ``tree.ports[node]``, from the last evaluation
     into ``data``: the inverse articulated inertia of the sub-assembly seen at its
     ports (theory (T1))."""
+    data = check_data(tree, data)
+    node = check_count("node", node, minimum=0)
+    if node >= tree.n_nodes:
+        raise InputError(f"node must be below the tree's {tree.n_nodes} nodes (bodies "
+                         f"0..{tree.model.nb - 1}, then the internal nodes), got {node}")
     P, base = int(tree.n_ports[node]), int(tree.pair_base[node])
     out = np.zeros((6 * P, 6 * P))
     for a in range(P):
