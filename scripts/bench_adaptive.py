@@ -1,14 +1,15 @@
-"""Time adaptive dynamics against the number of active joints (issue 3).
+"""Time adaptive dynamics against the number of active joints (issues 3 and 15).
 
 Pendulums of 300, 1000 and 10000 bodies (``vdad.scenes.pendulum``) released from
 1 rad. Each adaptive run holds a fixed number of active joints: budget mode with
 no look-ahead and no dwell, so the first step keeps the ``budget`` joints of
 highest metric and rigidifies the rest for good; the time per step is then
-measured on the following steps, for both metric evaluations
-(``coefficients``, ``direct``). The full DCA and MuJoCo's ``mj_step`` (where it
-compiles the model) are timed in the same run. Writes
-``docs/bench_adaptive.json`` and the section between the markers of
-``docs/benchmarks.md``. Usage: ``python scripts/bench_adaptive.py [--quick]``.
+measured on the following steps. The compiled full DCA (``Simulator.step``) and
+MuJoCo's ``mj_step`` (where it compiles the model) are timed in the same run,
+and so are threshold 0 (everything active) and the cost of the region updates
+of a threshold run. Writes ``docs/bench_adaptive.json`` and the section between
+the markers of ``docs/benchmarks.md``. Usage: ``python scripts/bench_adaptive.py
+[--quick]``.
 """
 
 from __future__ import annotations
@@ -25,16 +26,20 @@ import numpy as np
 from bench_dynamics import DOCS, fmt, write_section
 
 import vdad
+from vdad.adaptive import METRICS
 from vdad.scenes import pendulum
+from vdad.simulator import ADAPTIVE_DEFAULTS
 
 MARK = ("<!-- bench_adaptive:start -->", "<!-- bench_adaptive:end -->")
+DEFAULT_METRIC = ADAPTIVE_DEFAULTS["metric"]
 SIZES = (300, 1000, 10000)
 ACTIVE = (1, 5, 20, 50, 100, 300)
 PREDECESSOR = (300, 100, 50, 20, 1)        # Redon et al. 2005, 300-joint pendulum
 THRESHOLDS = (0.0, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3)
 VARIANTS = {"look-ahead, hysteresis (default)": {},
             "no look-ahead": {"lookahead": False},
-            "look-ahead, no hysteresis (kappa 1, dwell 0)": {"kappa": 1.0, "dwell": 0}}
+            "look-ahead, no hysteresis (kappa 1, dwell 0)": {"kappa": 1.0, "dwell": 0},
+            "drop lock (consistent)": {"drop": "lock"}}
 MUJOCO_MAX = 1000                          # mj compiles chains up to ~1000 (anchors §1)
 
 
@@ -54,7 +59,31 @@ def time_adaptive(scene, active, metric, steps, repeats):
     sim.step(3)                                   # settle the region
     t = ms_per_step(sim, steps, repeats)
     held = [s.active_joints for s in sim.history[3:]]
-    return t, float(np.mean(held)), len(sim.adaptive.levels)
+    return t, float(np.mean(held))
+
+
+def fixed_and_per_node(rows, n):
+    """Least-squares ``ms = fixed + per_node * active`` over the rows of ``n`` bodies."""
+    pts = [(r["active_held"], r["adaptive_ms"]) for r in rows if r["bodies"] == n]
+    a = np.array(pts)
+    slope, intercept = np.polyfit(a[:, 0], a[:, 1], 1)
+    return 1e3 * intercept, 1e3 * slope               # µs, µs per active joint
+
+
+def region_cost(steps):
+    """Median µs of the region update on steps of a 300-body threshold run that
+    changed the region, per changed node, and on steps that changed nothing."""
+    sim = pendulum(300).simulator(method="adaptive", threshold=1e-5, dwell=0)
+    sim.step(steps)
+    changed = [(1e6 * s.times["region"], s.rigidified + s.released) for s in sim.history[1:]
+               if s.rigidified + s.released]
+    quiet = [1e6 * s.times["region"] for s in sim.history[1:] if not s.rigidified + s.released]
+    return dict(steps=steps, changing_steps=len(changed),
+                us_per_changing_step=statistics.median(t for t, _ in changed) if changed else None,
+                nodes_per_changing_step=float(np.mean([k for _, k in changed])) if changed
+                else None,
+                us_per_change=statistics.median(t / k for t, k in changed) if changed else None,
+                us_quiet_step=statistics.median(quiet) if quiet else None)
 
 
 def time_mujoco_step(model, steps, repeats):
@@ -130,18 +159,30 @@ def main(argv=None):
         t_mj, mj_note = time_mujoco_step(scene.model, steps, repeats)
         for active in [a for a in ACTIVE if a <= n]:
             row = dict(bodies=n, active=active, full_dca_ms=t_full, mujoco_ms=t_mj, notes=mj_note)
-            for metric in ("coefficients", "direct"):
-                t, held, levels = time_adaptive(scene, active, metric, steps, repeats)
-                row[f"{metric}_ms"] = t
-                row["active_held"], row["levels"] = held, levels
-            row["speedup_coefficients"] = t_full / row["coefficients_ms"]
-            row["speedup_direct"] = t_full / row["direct_ms"]
+            for metric in METRICS:
+                row[f"{metric}_ms"], row["active_held"] = time_adaptive(scene, active, metric,
+                                                                        steps, repeats)
+            row["adaptive_ms"] = row[f"{DEFAULT_METRIC}_ms"]
+            row["speedup"] = t_full / row["adaptive_ms"]
             rows.append(row)
             print(json.dumps(row), flush=True)
+        if n == 300:
+            everything = dict(full_dca_ms=t_full)
+            for metric in METRICS:
+                zero = scene.simulator(method="adaptive", threshold=0.0, metric=metric)
+                zero.step(3)
+                everything[f"{metric}_ms"] = ms_per_step(zero, steps, repeats)
+            everything["adaptive_ms"] = everything[f"{DEFAULT_METRIC}_ms"]
+            print(json.dumps(everything), flush=True)
+    fits = {n: fixed_and_per_node(rows, n) for n in SIZES}
+    changes = region_cost(100 if args.quick else 500)
+    print(json.dumps(changes), flush=True)
     sweep = threshold_sweep(100 if args.quick else 500)
     result = dict(machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
                   python=platform.python_version(), numpy=np.__version__, vdad=vdad.__version__,
-                  quick=args.quick, rows=rows, threshold_sweep=sweep)
+                  quick=args.quick, rows=rows, threshold_zero=everything,
+                  fixed_and_per_node_us={str(n): f for n, f in fits.items()},
+                  region_changes=changes, threshold_sweep=sweep)
     Path(args.out).write_text(json.dumps(result, indent=1))
     write_tables(rows, result)
 
@@ -152,34 +193,46 @@ def _row(rows, n, a):
 
 def write_tables(rows, result):
     at50 = {n: _row(rows, n, 50) for n in SIZES}
-    ratio = {m: at50[10000][f"{m}_ms"] / at50[1000][f"{m}_ms"] for m in ("coefficients",
-                                                                          "direct")}
+    ratio = at50[10000]["adaptive_ms"] / at50[1000]["adaptive_ms"]
     lines = ["", f"Median ms per step (dt = 1 ms, semi-implicit Euler); Python "
              f"{result['python']}, numpy {result['numpy']}, {result['machine']}"
              f"{' (quick run)' if result['quick'] else ''}. Adaptive runs hold the number of "
-             "active joints fixed (budget mode, no look-ahead).", "",
-             "| bodies | active joints | levels | adaptive, coefficients | adaptive, direct | "
-             "full DCA | speed-up (coeff. / direct) | mj_step | notes |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "active joints fixed (budget mode, no look-ahead); the full DCA is the compiled "
+             "step loop.", "",
+             f"| bodies | active joints | adaptive ({DEFAULT_METRIC}) | "
+             + " | ".join(f"metric {m}" for m in METRICS if m != DEFAULT_METRIC)
+             + " | full DCA | speed-up | mj_step | notes |",
+             "|---|---|---|" + "---|" * (len(METRICS) - 1) + "---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['bodies']} | {r['active_held']:.0f} | {r['levels']} | "
-                     f"{fmt(r['coefficients_ms'], 2)} | {fmt(r['direct_ms'], 2)} | "
-                     f"{fmt(r['full_dca_ms'], 2)} | {r['speedup_coefficients']:.1f}x / "
-                     f"{r['speedup_direct']:.1f}x | {fmt(r['mujoco_ms'], 2)} | {r['notes']} |")
-    lines += ["", "At 50 active joints the 10000-body step takes "
-              f"{ratio['coefficients']:.2f}x (coefficients) and {ratio['direct']:.2f}x (direct) "
-              "the 1000-body step (target: within 1.5x).", "",
-              "Predecessor's series (Redon et al. 2005: 300-joint pendulum):", "",
-              "| active joints | coefficients ms | direct ms | full DCA ms | speed-up "
-              "(coeff. / direct) | mj_step ms |", "|---|---|---|---|---|---|"]
+        others = " | ".join(fmt(r[f"{m}_ms"], 3) for m in METRICS if m != DEFAULT_METRIC)
+        lines.append(f"| {r['bodies']} | {r['active_held']:.0f} | {fmt(r['adaptive_ms'], 3)} | "
+                     f"{others} | {fmt(r['full_dca_ms'], 3)} | {r['speedup']:.1f}x | "
+                     f"{fmt(r['mujoco_ms'], 3)} | {r['notes']} |")
+    z, c = result["threshold_zero"], result["region_changes"]
+    fits = result["fixed_and_per_node_us"]
+    lines += ["", f"At 50 active joints the 10000-body step takes {ratio:.2f}x the 1000-body "
+              f"step. Threshold 0 (all 300 joints active) takes {z['adaptive_ms']:.3f} ms "
+              f"per step, {z['adaptive_ms'] / z['full_dca_ms']:.2f}x the full DCA ("
+              + ", ".join(f"{m}: {z[f'{m}_ms'] / z['full_dca_ms']:.2f}x" for m in METRICS)
+              + "). Fixed cost "
+              "per step and cost per active joint (least squares over the rows): "
+              + ", ".join(f"{n} bodies {f[0]:.0f} µs + {f[1]:.2f} µs per joint"
+                          for n, f in fits.items())
+              + f". Region updates of a 300-body threshold run (1e-5, dwell 0, {c['steps']} "
+              f"steps): {c['changing_steps']} steps changed the region, "
+              f"{c['nodes_per_changing_step']:.1f} nodes each, in a median "
+              f"{c['us_per_changing_step']:.0f} µs ({c['us_per_change']:.0f} µs per changed "
+              f"node); a step without change spends {c['us_quiet_step']:.0f} µs in the update.",
+              "", "Predecessor's series (Redon et al. 2005: 300-joint pendulum):", "",
+              "| active joints | adaptive ms | full DCA ms | speed-up | mj_step ms |",
+              "|---|---|---|---|---|"]
     for a in PREDECESSOR:
         r = _row(rows, 300, a)
-        lines.append(f"| {a} | {fmt(r['coefficients_ms'], 2)} | {fmt(r['direct_ms'], 2)} | "
-                     f"{fmt(r['full_dca_ms'], 2)} | {r['speedup_coefficients']:.1f}x / "
-                     f"{r['speedup_direct']:.1f}x | {fmt(r['mujoco_ms'], 2)} |")
+        lines.append(f"| {a} | {fmt(r['adaptive_ms'], 3)} | {fmt(r['full_dca_ms'], 3)} | "
+                     f"{r['speedup']:.1f}x | {fmt(r['mujoco_ms'], 3)} |")
     sweep = result["threshold_sweep"]
     lines += ["", f"Threshold sweep (300-body pendulum from 1 rad, {sweep[0]['steps']} steps "
-              "of 1 ms, `metric=coefficients`): tip error is the distance between the last "
+              "of 1 ms): tip error is the distance between the last "
               "body's positions under adaptive dynamics and under the full DCA, over the "
               "pendulum's length; changes are nodes rigidified or released per step.", "",
               "| variant | threshold | mean active | mean accelerated | ms / step | "

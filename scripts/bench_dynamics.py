@@ -252,10 +252,10 @@ def write_table(rows, result):
     write_section(MARK, lines[1:])
 
 
-def write_section(mark, lines):
-    """Replace the text between the markers ``mark`` of ``docs/benchmarks.md`` by
-    ``lines`` (the section is appended if the markers are missing)."""
-    path = DOCS / "benchmarks.md"
+def write_section(mark, lines, path=DOCS / "benchmarks.md"):
+    """Replace the text between the markers ``mark`` of ``path`` (default
+    ``docs/benchmarks.md``) by ``lines`` (the section is appended if the markers
+    are missing)."""
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     if mark[0] not in text:
         text += f"\n{mark[0]}{mark[1]}\n"

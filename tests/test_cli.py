@@ -96,7 +96,7 @@ def test_run_adaptive_reports_active_joints_and_counters(tmp_path):
                 "node_visits"):
         assert counters[key] >= 0
     assert counters["assembled"] == data["active_joints_mean"]
-    assert set(data["ms_per_phase_mean"]) >= {"kinematics", "assemble", "back_substitute"}
+    assert set(data["ms_per_phase_mean"]) >= {"forces", "dynamics", "integrate", "region"}
 
 
 def test_run_budget_keeps_the_budget(tmp_path):
@@ -227,7 +227,7 @@ def test_run_baselines(tmp_path):
                  "--no-progress"]) == 0
     assert json.loads(sleep.read_text())["options"] == {
         "threshold": 0.0, "sleep_speed": 0.1, "sleep_time": 0.2, "kappa": 4.0, "dwell": 10,
-        "policy": "momentum", "lookahead": True, "metric": "coefficients",
+        "policy": "momentum", "lookahead": True, "drop": "lock", "metric": "direct",
         "coverage_every": 1}
 
 

@@ -134,7 +134,7 @@ def test_view_oq_rigidifies_what_a_wall_hides():
     hidden = np.flatnonzero(p[:, 2] < z_mid - 0.2)
     assert len(hidden) >= 3
     ad = sim.adaptive
-    active_joints = set(ad.js.joints.tolist())
+    active_joints = set(ad.joints.tolist())
     assert not active_joints & set(hidden[1:].tolist()) # joints between hidden bodies
     open_view = scene.simulator(method="view-oq", threshold=1e-3)
     open_view.step(300)

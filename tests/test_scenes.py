@@ -376,7 +376,7 @@ def leg_activity(method):
     while sim.t < 7.4 - 1e-9:
         sim.step(10)
         t.append(sim.t)
-        active.append(np.isin(legs, sim.adaptive.js.joints).sum())
+        active.append(np.isin(legs, sim.adaptive.joints).sum())
     t, active = np.array(t), np.array(active)
     return {name: active[(t >= a) & (t <= b)].mean() for name, (a, b) in PUPPET_PHASES.items()}
 

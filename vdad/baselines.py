@@ -112,9 +112,10 @@ class Sleeping(_Switch):
         slow = speed < self.speed
         self.quiet_since = np.where(slow, np.fmin(self.quiet_since, t), np.nan)
         wake = np.isfinite(speed) & ~slow
-        la = adaptive.la
-        if la is not None and len(la.F):
-            pushed = np.sqrt(np.maximum(la.A, 0.0)) > self.speed / self.duration
-            wake[self.component[la.F[pushed]]] = True
+        F = adaptive.front
+        F = F[(F >= adaptive.model.nb) & ~np.isnan(adaptive.la[F])]
+        if len(F):
+            pushed = np.sqrt(np.maximum(adaptive.la[F], 0.0)) > self.speed / self.duration
+            wake[self.component[F[pushed]]] = True
         self.asleep = (self.asleep | (t - self.quiet_since >= self.duration)) & ~wake
         return self.switch(~self.asleep, keep_top=False)

@@ -68,7 +68,7 @@ def _scene_options(parser):
 
 # the method options that make_simulator gives Scene.simulator when set: each is the
 # keyword of the CLI option of the same name (--coverage-every: coverage_every)
-SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "dwell", "kappa", "volume",
+SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "drop", "dwell", "kappa", "volume",
                      "estimate", "counting", "coverage_every", "distance", "sleep_speed",
                      "sleep_time")
 
@@ -95,7 +95,7 @@ def _method_options(parser):
     """Dynamics method options (shared by ``run`` and ``render``). Those left out
     take the scene's calibrated defaults (``docs/scenes.md``), then the generic
     ones of :data:`vdad.simulator.DEFAULTS` and of AdaptiveDynamics."""
-    from .adaptive import METRICS, POLICIES
+    from .adaptive import DROPS, METRICS, POLICIES
     from .bounding import VOLUMES
     from .integrators import INTEGRATORS
     from .simulator import ADAPTIVE_DEFAULTS, DEFAULTS, METHODS
@@ -132,8 +132,11 @@ def _method_options(parser):
                           "locking impulse, or zeroed as in the paper (default "
                           f"{default('policy')})")
     adaptive.add_argument("--metric", choices=METRICS,
-                          help="predict the metric from (T16)-(T18), or sum it from computed "
-                          f"accelerations (same values; default {default('metric')})")
+                          help="sum the metric from computed accelerations, or predict it from "
+                          f"(T16)-(T18) (same values; default {default('metric')})")
+    adaptive.add_argument("--drop", choices=DROPS,
+                          help="joints not accelerated: coast with their velocity (the paper), "
+                          f"or lock at once (consistent; default {default('drop')})")
     adaptive.add_argument("--dwell", type=_nonnegative_int,
                           help=f"steps a joint keeps a new state (default {default('dwell')})")
     adaptive.add_argument("--kappa", type=float,

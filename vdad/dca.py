@@ -125,8 +125,15 @@ def node_blocks(tree, data, node):
     """``Phi`` (6 P, 6 P) of ``node`` (a body or ``nb +`` an internal index) with
     its ``P`` ports in the order of ``tree.ports[node]``, from the last evaluation
     into ``data``: the inverse articulated inertia of the sub-assembly seen at its
-    ports (theory (T1))."""
-    data = check_data(tree, data)
+    ports (theory (T1)). ``data`` may also be any store of that layout (n_pairs,
+    6, 6), such as the metric coefficients ``Psi`` of adaptive dynamics."""
+    if isinstance(data, np.ndarray):
+        if data.shape != (tree.n_pairs, 6, 6):
+            raise InputError(f"a block store of this tree has shape ({tree.n_pairs}, 6, 6), "
+                             f"got {data.shape}")
+        store = data
+    else:
+        store = check_data(tree, data).Phi
     node = check_count("node", node, minimum=0)
     if node >= tree.n_nodes:
         raise InputError(f"node must be below the tree's {tree.n_nodes} nodes (bodies "
@@ -135,7 +142,7 @@ def node_blocks(tree, data, node):
     out = np.zeros((6 * P, 6 * P))
     for a in range(P):
         for c in range(a, P):
-            block = data.Phi[base + pair_offset(P, a, c)]
+            block = store[base + pair_offset(P, a, c)]
             out[6 * a:6 * a + 6, 6 * c:6 * c + 6] = block
             out[6 * c:6 * c + 6, 6 * a:6 * a + 6] = block.T
     return out
@@ -159,37 +166,43 @@ def body_arrays(model) -> tuple:
 def passive_forces_pass(stage_kind, stage_q, stage_v, stage_stiffness, q_spring, damping,
                         q, qd, tau):
     """``tau = -D qd - K d`` (nv,): the joint dampers, and the springs of every
-    stage towards ``q_spring`` (a ball's ``d``: the rotation vector of
-    ``q_spring^-1 q``, as MuJoCo; ``docs/forces.md``)."""
+    stage towards ``q_spring`` (:func:`spring_force`)."""
     for i in range(qd.shape[0]):
         tau[i] = -damping[i] * qd[i]
     for s in range(stage_kind.shape[0]):
-        k = stage_stiffness[s]
-        if k == 0.0:
-            continue
-        kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
-        if kind == 2:                                  # ball: log(conj(q_spring) q)
-            a0, a1, a2, a3 = q_spring[iq], -q_spring[iq + 1], -q_spring[iq + 2], -q_spring[iq + 3]
-            b0, b1, b2, b3 = q[iq], q[iq + 1], q[iq + 2], q[iq + 3]
-            d = quaternion_log(a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
-                               a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-                               a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
-                               a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
-            for c in range(3):
-                tau[iv + c] -= k * d[c]
-        else:
-            for c in range(3 if kind == 3 else 1):
-                tau[iv + c] -= k * (q[iq + c] - q_spring[iq + c])
+        spring_force(s, stage_kind, stage_q, stage_v, stage_stiffness, q_spring, q, tau)
+
+
+@inlined
+def spring_force(s, stage_kind, stage_q, stage_v, stage_stiffness, q_spring, q, tau):
+    """``tau -= K d`` on the dofs of stage ``s``: its spring towards ``q_spring`` (a
+    ball's ``d``: the rotation vector of ``q_spring^-1 q``, as MuJoCo;
+    ``docs/forces.md``)."""
+    k = stage_stiffness[s]
+    if k == 0.0:
+        return
+    kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
+    if kind == 2:                                      # ball: log(conj(q_spring) q)
+        a0, a1, a2, a3 = q_spring[iq], -q_spring[iq + 1], -q_spring[iq + 2], -q_spring[iq + 3]
+        b0, b1, b2, b3 = q[iq], q[iq + 1], q[iq + 2], q[iq + 3]
+        d = quaternion_log(a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+                           a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+                           a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+                           a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
+        for c in range(3):
+            tau[iv + c] -= k * d[c]
+    else:
+        for c in range(3 if kind == 3 else 1):
+            tau[iv + c] -= k * (q[iq + c] - q_spring[iq + c])
 
 
 # --- node kernels -----------------------------------------------------------------------
 
 @inlined
 def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
-    """Blocks of body ``i``, theory (T2)-(T3): ``Phi_hk = X_h Ibar^-1 X_k^T`` and
-    ``b_h = X_h Ibar^-1 (f - v_c ×* Ibar v_c)`` over its ports ``h, k``, with
-    ``X_h = X_{h<-c}`` from its centre of mass to port ``h`` and ``f`` the known
-    wrench at the centre of mass (gravity and ``f_ext``, body axes). The inbound
+    """Blocks of body ``i``, theory (T2)-(T3) (:func:`leaf_blocks`), with ``X_h =
+    X_{h<-c}`` from its centre of mass to port ``h`` and the known wrench at the
+    centre of mass (:func:`known_wrench` and ``f_ext``, body axes). The inbound
     port is the body frame; the port of a child joint is that joint's child frame.
     ``X``, ``Q`` (>= ports, 6, 6): ``X_h`` and ``Ibar^-1 X_h^T``; ``tmp`` (>= 3, 6,
     6): scratch."""
@@ -198,31 +211,40 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
     mass, com, inertia, Iinv, gravity = bodies[0], bodies[1], bodies[2], bodies[3], bodies[4]
     R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
     P, s0 = n_ports[i], slot_base[i]
-    m, c, I, Ii = mass[i], com[i], inertia[i], Iinv[i]
+    m, c = mass[i], com[i]
     eye, zero = tmp[2, :3, :3], tmp[2, 3, :3]
     for r in range(3):
         zero[r] = 0.0
         for s in range(3):
             eye[r, s] = 1.0 if r == s else 0.0
     for h in range(P):
-        j, Xh = slot_joint[s0 + h], X[h]
+        j = slot_joint[s0 + h]
         if slot_side[s0 + h] > 0:
-            port_transform(eye, zero, c, Xh)
+            port_transform(eye, zero, c, X[h])
         else:
-            port_transform(R_rel[j], p_rel[j], c, Xh)
-        inverse_inertia_transpose(Xh, Ii, m, Q[h])
-    for h in range(P):                                           # (T2), h <= k
-        for k in range(h, P):
-            port_product(X[h], Q[k], Phi[pair_base[i] + pair_offset(P, h, k)])
-    # (T3): f - bias at the com, body axes: (n - w × I w; m R^T g + f - m w × v_c)
-    w, Rb = v[i, :3], R[i]
-    vc0 = v[i, 3] + w[1] * c[2] - w[2] * c[1]
-    vc1 = v[i, 4] + w[2] * c[0] - w[0] * c[2]
-    vc2 = v[i, 5] + w[0] * c[1] - w[1] * c[0]
+            port_transform(R_rel[j], p_rel[j], c, X[h])
+    f, Rb = tmp[1, 0], R[i]
+    known_wrench(m, c, inertia[i], v[i], Rb, gravity, f)
+    if f_ext.shape[0] > 0:                                       # world axes -> body axes
+        for r in range(3):
+            f[r] += Rb[0, r] * f_ext[i, 0] + Rb[1, r] * f_ext[i, 1] + Rb[2, r] * f_ext[i, 2]
+            f[3 + r] += Rb[0, r] * f_ext[i, 3] + Rb[1, r] * f_ext[i, 4] + Rb[2, r] * f_ext[i, 5]
+    leaf_blocks(P, pair_base[i], s0, X, Q, m, Iinv[i], f, Phi, b, tmp[1, 1])
+
+
+@inlined
+def known_wrench(m, c, I, v, R, gravity, f):
+    """The known wrench (6,) on a rigid body of mass ``m``, centre of mass ``c``
+    and inertia ``I`` about it, moving with ``v`` (its frame's velocity, at its
+    origin, body axes) at orientation ``R``: gravity minus the bias of (T3), at the
+    centre of mass, body axes: ``(-w × I w; m R^T g - m w × v_c)``."""
+    w = v[:3]
+    vc0 = v[3] + w[1] * c[2] - w[2] * c[1]
+    vc1 = v[4] + w[2] * c[0] - w[0] * c[2]
+    vc2 = v[5] + w[0] * c[1] - w[1] * c[0]
     Iw0 = I[0, 0] * w[0] + I[0, 1] * w[1] + I[0, 2] * w[2]
     Iw1 = I[1, 0] * w[0] + I[1, 1] * w[1] + I[1, 2] * w[2]
     Iw2 = I[2, 0] * w[0] + I[2, 1] * w[1] + I[2, 2] * w[2]
-    f, a_c = tmp[1, 0], tmp[1, 1]
     f[0] = -(w[1] * Iw2 - w[2] * Iw1)
     f[1] = -(w[2] * Iw0 - w[0] * Iw2)
     f[2] = -(w[0] * Iw1 - w[1] * Iw0)
@@ -230,11 +252,20 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
     f[4] = -m * (w[2] * vc0 - w[0] * vc2)
     f[5] = -m * (w[0] * vc1 - w[1] * vc0)
     for r in range(3):
-        f[3 + r] += m * (Rb[0, r] * gravity[0] + Rb[1, r] * gravity[1] + Rb[2, r] * gravity[2])
-    if f_ext.shape[0] > 0:                                       # world axes -> body axes
-        for r in range(3):
-            f[r] += Rb[0, r] * f_ext[i, 0] + Rb[1, r] * f_ext[i, 1] + Rb[2, r] * f_ext[i, 2]
-            f[3 + r] += Rb[0, r] * f_ext[i, 3] + Rb[1, r] * f_ext[i, 4] + Rb[2, r] * f_ext[i, 5]
+        f[3 + r] += m * (R[0, r] * gravity[0] + R[1, r] * gravity[1] + R[2, r] * gravity[2])
+
+
+@inlined
+def leaf_blocks(P, base, s0, X, Q, m, Ii, f, Phi, b, a_c):
+    """(T2)-(T3) of a rigid leaf of ``P`` ports from its port transforms ``X_h``
+    (``X``): ``Phi_hk = X_h Ibar^-1 X_k^T`` (``h <= k``, from ``base``) and ``b_h =
+    X_h Ibar^-1 f`` (slots from ``s0``), ``Ibar^-1 = diag(Ii, 1/m)``, ``f`` (6,) at
+    the centre of mass. ``Q`` (>= P, 6, 6), ``a_c`` (6,): scratch."""
+    for h in range(P):
+        inverse_inertia_transpose(X[h], Ii, m, Q[h])
+    for h in range(P):
+        for k in range(h, P):
+            port_product(X[h], Q[k], Phi[base + pair_offset(P, h, k)])
     for r in range(3):
         a_c[r] = Ii[r, 0] * f[0] + Ii[r, 1] * f[1] + Ii[r, 2] * f[2]
         a_c[3 + r] = f[3 + r] / m
@@ -375,15 +406,26 @@ def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, tmp):
 def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, G, GY,
                   tmp):
     """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
-    ``B`` joined by joint ``j``, theory (T6)-(T12). Keeps ``Y``, ``W_m``,
-    ``beta``, ``gamma`` of the node (row ``i``) and ``W^T W_m`` of its joint (rows
-    of its dofs) for :func:`solve_node`. ``G``, ``GY`` (max ports, 6, 6), ``tmp``
-    (>= 6, 6, 6): scratch."""
+    ``B`` joined by joint ``j``, theory (T6)-(T12): :func:`joint_node`, then
+    :func:`merge_ports`. ``G``, ``GY`` (max ports, 6, 6), ``tmp`` (>= 6, 6, 6):
+    scratch; ``G[a]``, ``GY[a]`` and ``W_m`` (``tmp[5]``) are left for callers that
+    need them (the metric coefficients of :mod:`vdad.region`)."""
+    joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, tmp)
+    merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY)
+
+
+@inlined
+def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, tmp):
+    """The joint ``j`` of internal node ``C = nb + i`` across its children's
+    blocks, theory (T6)-(T9) with the armature (A1)-(A2): keeps ``Y``, ``beta``,
+    ``gamma`` of the node (row ``i``) and ``W^T W_m`` of its joint (rows of its
+    dofs) for :func:`solve_node`; ``W_m`` is left in ``tmp[5]``. ``tmp`` (>= 6, 6,
+    6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint = js[6], js[7]
     T, W, c_J = kin[3], kin[4], kin[8]
-    C, A, B, j = nb + i, left[i], right[i], joint[i]
+    A, B, j = left[i], right[i], joint[i]
     jA, jB = port_A[i], port_B[i]
     d = nv_joint[j]
     Wj, Yj, Wmj, bj, gj = W[j], Y[i], tmp[5], beta[i], gamma[i]
@@ -410,7 +452,16 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, ga
             for r in range(6):
                 acc += Wj[r, k] * Wmj[r, s]
             WtWm[v_start[j] + k, s] = acc
-    # (T11)-(T12) over C's ports a, c: G_a = s_a Phi^X_{a j_X}, kept unsigned in G[a]
+
+
+@inlined
+def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
+    """(T11)-(T12) of internal node ``C = nb + i`` over its ports ``a, c`` with
+    ``G_a = s_a Phi^X_{a j_X}``, kept unsigned in ``G[a]``, and ``GY[a] = G[a] Y``
+    (max ports, 6, 6), after :func:`joint_node`."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    C, A, jA, jB, Yj, bj = nb + i, left[i], port_A[i], port_B[i], Y[i], beta[i]
     P, s0 = n_ports[C], slot_base[C]
     for a in range(P):
         X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]

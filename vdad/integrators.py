@@ -22,42 +22,61 @@ from .kinematics import as_joint_set, kinematics_pass
 
 @inlined
 def configuration_step(stage_kind, stage_q, stage_v, q, v, dt, out):
-    """``out = q ⊕ v dt`` (nq,) stage by stage; ``out`` must not be ``q``."""
+    """``out = q ⊕ v dt`` (nq,) stage by stage (:func:`stage_step`)."""
     for s in range(stage_kind.shape[0]):
-        kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
-        if kind == 2:
-            quaternion_step(q[iq:iq + 4], v[iv:iv + 3], dt, out[iq:iq + 4])
-        else:
-            for c in range(3 if kind == 3 else 1):
-                out[iq + c] = q[iq + c] + v[iv + c] * dt
+        stage_step(s, stage_kind, stage_q, stage_v, q, v, dt, out)
+
+
+@inlined
+def stage_step(s, stage_kind, stage_q, stage_v, q, v, dt, out):
+    """Stage ``s`` of ``out = q ⊕ v dt``: ``q + v dt`` on linear stages, ``q ⊗
+    exp(w dt)`` on balls; ``out`` may be ``q``."""
+    kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
+    if kind == 2:
+        quaternion_step(q[iq:iq + 4], v[iv:iv + 3], dt, out[iq:iq + 4])
+    else:
+        for c in range(3 if kind == 3 else 1):
+            out[iq + c] = q[iq + c] + v[iv + c] * dt
 
 
 @inlined
 def configuration_rate_of(stage_kind, stage_q, stage_v, q, v, out):
-    """``out = dq/dt`` (nq,): ``v`` on linear stages, ``1/2 q ⊗ (0, w)`` on balls."""
+    """``out = dq/dt`` (nq,) stage by stage (:func:`stage_rate`)."""
     for s in range(stage_kind.shape[0]):
-        kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
-        if kind == 2:
-            w, x, y, z = q[iq], q[iq + 1], q[iq + 2], q[iq + 3]
-            a, b, c = v[iv], v[iv + 1], v[iv + 2]
-            out[iq] = 0.5 * (-x * a - y * b - z * c)
-            out[iq + 1] = 0.5 * (w * a + y * c - z * b)
-            out[iq + 2] = 0.5 * (w * b - x * c + z * a)
-            out[iq + 3] = 0.5 * (w * c + x * b - y * a)
-        else:
-            for c in range(3 if kind == 3 else 1):
-                out[iq + c] = v[iv + c]
+        stage_rate(s, stage_kind, stage_q, stage_v, q, v, out)
+
+
+@inlined
+def stage_rate(s, stage_kind, stage_q, stage_v, q, v, out):
+    """Stage ``s`` of ``dq/dt``: ``v`` on linear stages, ``1/2 q ⊗ (0, w)`` on balls."""
+    kind, iq, iv = stage_kind[s], stage_q[s], stage_v[s]
+    if kind == 2:
+        w, x, y, z = q[iq], q[iq + 1], q[iq + 2], q[iq + 3]
+        a, b, c = v[iv], v[iv + 1], v[iv + 2]
+        out[iq] = 0.5 * (-x * a - y * b - z * c)
+        out[iq + 1] = 0.5 * (w * a + y * c - z * b)
+        out[iq + 2] = 0.5 * (w * b - x * c + z * a)
+        out[iq + 3] = 0.5 * (w * c + x * b - y * a)
+    else:
+        for c in range(3 if kind == 3 else 1):
+            out[iq + c] = v[iv + c]
 
 
 @inlined
 def normalize_quaternions(stage_kind, stage_q, q):
     """Every ball stage's quaternion of ``q`` divided by its norm, in place."""
     for s in range(stage_kind.shape[0]):
-        if stage_kind[s] == 2:
-            iq = stage_q[s]
-            n = np.sqrt(q[iq] ** 2 + q[iq + 1] ** 2 + q[iq + 2] ** 2 + q[iq + 3] ** 2)
-            for c in range(4):
-                q[iq + c] /= n
+        normalize_stage(s, stage_kind, stage_q, q)
+
+
+@inlined
+def normalize_stage(s, stage_kind, stage_q, q):
+    """The quaternion of stage ``s`` divided by its norm, in place, if it is a ball."""
+    if stage_kind[s] == 2:
+        iq = stage_q[s]
+        n = np.sqrt(q[iq] ** 2 + q[iq + 1] ** 2 + q[iq + 2] ** 2 + q[iq + 3] ** 2)
+        for c in range(4):
+            q[iq + c] /= n
 
 
 def integrate_configuration(space, q, v, dt):

@@ -401,11 +401,14 @@ def body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_
 def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work):
     """Theory §3 for every joint of the set ``js`` (:attr:`JointSet.arrays`), parents
     first: placement, subspaces of multi-stage joints, world pose and, if
-    ``velocities``, the body velocity and ``c_J``."""
+    ``velocities``, the body velocity and ``c_J``. ``order`` may end early at a
+    -1 (the active joints of adaptive dynamics, :mod:`vdad.region`)."""
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
      stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
     for idx in range(order.shape[0]):
         j = order[idx]
+        if j < 0:
+            break
         joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
                         stage_ref, stage_q, q, R_rel, p_rel, R3[1], R3[2], v6[1])
         if n_stages[j] > 1:

@@ -41,6 +41,17 @@ def sum_up(tree, per_body):
     return N
 
 
+def _by_height(tree, nodes):
+    """Internal ``nodes`` (ascending: children first), batched by their height
+    among ``nodes`` (nodes outside at 0), lowest first."""
+    nb = tree.model.nb
+    height = np.zeros(tree.n_nodes + 1, int)
+    for C in nodes.tolist():
+        height[C] = 1 + max(height[tree.left[C - nb]], height[tree.right[C - nb]])
+    h = height[nodes]
+    return [nodes[h == k] for k in range(1, int(h.max()) + 1)] if len(nodes) else []
+
+
 class _Coverage:
     """A camera path and the counting resolution (default: the camera's own)."""
 
@@ -95,14 +106,17 @@ class BoundingVolumes(_Coverage):
         world = Volumes.empty(self.kind, tree.n_nodes + 1)
         if adaptive is None or self.kind == "aabb":
             world[np.arange(nb)] = world_bodies
-            levels, nodes = tree.levels, np.arange(tree.n_nodes)
+            for lv in tree.levels:
+                world[lv.node] = merge(world[lv.node_A], world[lv.node_B])
+            nodes = np.arange(tree.n_nodes)
         else:
             front = adaptive.front
             self._refresh(front, adaptive)
             world[front] = place(self.local[front], *adaptive.group_poses(q, front))
-            levels, nodes = adaptive.levels, np.concatenate([front, adaptive.act])
-        for lv in levels:
-            world[lv.node] = merge(world[lv.node_A], world[lv.node_B])
+            act = adaptive.act
+            for rows in _by_height(tree, act):
+                world[rows] = merge(world[tree.left[rows - nb]], world[tree.right[rows - nb]])
+            nodes = np.concatenate([front, act])
         N1 = np.full(tree.n_nodes + 1, np.nan)
         N1[nodes] = areas(world[nodes], cam)
         N1[-1] = 0.0

@@ -73,10 +73,9 @@ def active_joints(sim) -> np.ndarray:
     """Model ids (sorted) of the joints that move: all of them with ``"dca"`` or
     before the first adaptive step, otherwise the adaptive active region's."""
     sim = _simulator(sim)
-    js = None if sim.adaptive is None else sim.adaptive.js
-    if js is None:
+    if sim.adaptive is None:
         return np.arange(sim.model.nb)
-    return np.sort(np.asarray(js.joints, int))
+    return np.asarray(sim.adaptive.joints, int)
 
 
 def palette(n) -> np.ndarray:

@@ -1,0 +1,1034 @@
+"""The DCA on the active region of adaptive dynamics, node by node (Kim 2008 §4.2;
+theory §6; ``docs/adaptive.md``).
+
+The active region is per-node state: flags ``active`` (internal nodes whose
+joints are articulated), ``pinned`` (never rigidified) and ``desc`` (descended
+into this step). :func:`rebuild` turns the flags into what the passes visit, in
+O(active nodes): the active nodes and their *front* (their children outside the
+region, and roots outside it, each a rigid group of :mod:`vdad.hybrid`) in
+depth-first post-order with each entry's subtree size, the active joints in
+ascending order (parents first), and each active joint's kinematic parent (the
+top body of the group that holds its parent body) with its constant
+pre-placement. Then one evaluation (:func:`evaluate`) is
+
+1. the kinematics of the active joints (:func:`vdad.kinematics.kinematics_pass`
+   on that table: rigid joints cost nothing);
+2. the joint forces of the active joints, the front groups' leaves (T19)-(T20)
+   (:func:`group_leaf`), the bottom-up pass (T6)-(T12) over the active nodes
+   with, on a step's first evaluation, the metric coefficients (T16)-(T18)
+   (:func:`metric_node`);
+3. the top-down pass (T10), (T13), which stops at nodes whose predicted
+   acceleration score is below ``threshold / kappa`` (threshold mode) and skips
+   their subtrees: their joints coast (``qdd = 0``); in budget mode it solves
+   every active node and a max-heap then keeps the ``budget`` of highest score;
+4. on the first evaluation, the one-level look-ahead at the front
+   (:func:`lookahead`).
+
+:func:`update_region` rigidifies and releases nodes after a step, freezing
+group data per node (:func:`vdad.hybrid.freeze_node`) and applying the
+momentum-conserving locking impulse with the same passes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._linalg import (
+    inlined,
+    mm6,
+    mmt6_add,
+    motion_to_child,
+    mv6,
+    pass_kernel,
+    port_transform,
+    symmetric_part,
+)
+from .dca import (
+    assemble_node,
+    copy_block,
+    joint_node,
+    known_wrench,
+    leaf_blocks,
+    pair_offset,
+    solve_node,
+    spring_force,
+)
+from .hybrid import freeze_node, sort_ascending
+from .integrators import normalize_stage, stage_rate, stage_step
+from .kinematics import joint_placement, joint_subspace, kinematics_pass
+
+#: indices of :attr:`RegionData.counts`
+N_VISIT, N_JOINTS, ASSEMBLED, FRONT, SOLVED, ACCELERATED, LOOKAHEAD, RIGIDIFIED, RELEASED = \
+    range(9)
+
+
+@dataclass
+class RegionData:
+    """Work state of adaptive dynamics on a tree (shapes in brackets; ``N =
+    n_nodes + 1``, the last entry the sentinel above the roots).
+
+    active, pinned, desc [N] (bool), since [N]: step of each node's last change.
+    visit [n_nodes], size [n_nodes]: active nodes and front in depth-first
+    post-order, and the entries of each one's subtree; joints [nb]: the active
+    joints, ascending; par [nb], R0 [nb, 3, 3], p0 [nb, 3]: each active joint's
+    kinematic parent (-1: the world) and joint frame in that parent's frame.
+    counts [9]: :data:`N_VISIT` ... :data:`RELEASED`.
+    Psi [n_pairs, 6, 6], p [n_slots, 6], eta [N]: metric coefficients
+    (T16)-(T18); A [N]: the metric of the nodes reached; V [N]: the velocity
+    metric (T15); la [N]: the look-ahead metric of front nodes; N_M [N]: coverage;
+    wA, wV [nv]: the diagonal weights of (T14)-(T15); h [N, 6]: momenta of the
+    front groups (the locking impulse); heap [2, N], popped [N]: budget mode.
+    H, M [max ports, 6, 6], mtmp [10, 6, 6]: scratch.
+    """
+
+    active: np.ndarray
+    pinned: np.ndarray
+    desc: np.ndarray
+    since: np.ndarray
+    visit: np.ndarray
+    size: np.ndarray
+    joints: np.ndarray
+    par: np.ndarray
+    R0: np.ndarray
+    p0: np.ndarray
+    counts: np.ndarray
+    Psi: np.ndarray
+    p: np.ndarray
+    eta: np.ndarray
+    A: np.ndarray
+    V: np.ndarray
+    la: np.ndarray
+    N_M: np.ndarray
+    wA: np.ndarray
+    wV: np.ndarray
+    h: np.ndarray
+    heap: np.ndarray
+    popped: np.ndarray
+    H: np.ndarray
+    M: np.ndarray
+    mtmp: np.ndarray
+
+    @classmethod
+    def empty(cls, tree, wA, wV):
+        model = tree.model
+        nb, n = model.nb, tree.n_nodes
+        N, P = n + 1, tree.max_ports
+        z = np.zeros
+        return cls(z(N, bool), z(N, bool), z(N, bool), np.full(N, -(10**9), np.int64),
+                   z(n, np.int64), z(n, np.int64), z(nb, np.int64), np.full(nb, -1, np.int64),
+                   model.placement_R.copy(), model.placement_p.copy(), z(9, np.int64),
+                   z((tree.n_pairs, 6, 6)), z((tree.n_slots, 6)), z(N), np.full(N, np.nan),
+                   z(N), np.full(N, np.nan), np.ones(N), np.array(wA, float),
+                   np.array(wV, float), z((N, 6)), z((2, N)), z(N, bool), z((P, 6, 6)),
+                   z((P, 6, 6)), z((10, 6, 6)))
+
+    @property
+    def arrays(self) -> tuple:
+        return (self.active, self.pinned, self.desc, self.since, self.visit, self.size,
+                self.joints, self.par, self.R0, self.p0, self.counts, self.Psi, self.p,
+                self.eta, self.A, self.V, self.la, self.N_M, self.wA, self.wV, self.h,
+                self.heap, self.popped, self.H, self.M, self.mtmp)
+
+
+# --- the region's lists ------------------------------------------------------------------
+
+@pass_kernel
+def rebuild(nb, tree, model_js, groups, top, roots, region, stack):
+    """From the flags: the visit list (active nodes and front, depth-first
+    post-order) with subtree sizes, the active joints ascending, and the kinematic
+    table of every active joint, set from the front group that holds its parent
+    body: parent the group's ``top`` body (-1: a grounded group, the world) and
+    ``R0, p0`` the port's pose in the group followed by the joint's placement
+    (joints to the world keep their placement). ``stack`` [3, n_nodes + 2]:
+    scratch."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    placement_R, placement_p = model_js[2], model_js[3]
+    grounded, port_R, port_p = groups[4], groups[7], groups[8]
+    active, visit, size, joints, par, R0, p0, counts = (region[0], region[4], region[5],
+                                                        region[6], region[7], region[8],
+                                                        region[9], region[10])
+    node_of, start_of, state = stack[0], stack[1], stack[2]
+    n_out, n_joints, n_front = 0, 0, 0
+    for k in range(roots.shape[0]):
+        t = 0
+        node_of[0], state[0] = roots[k], 0
+        while t >= 0:
+            n = node_of[t]
+            if state[t] == 0:
+                start_of[t] = n_out
+                if n >= nb and active[n]:             # expand: left, then right, then n
+                    state[t] = 1
+                    i = n - nb
+                    joints[n_joints] = joint[i]
+                    n_joints += 1
+                    t += 1
+                    node_of[t], state[t] = right[i], 0
+                    if left[i] >= 0:
+                        t += 1
+                        node_of[t], state[t] = left[i], 0
+                    continue
+            visit[n_out] = n
+            size[n_out] = n_out - start_of[t] + 1
+            n_out += 1
+            t -= 1
+            if n >= nb and active[n]:
+                continue
+            n_front += 1
+            s0 = slot_base[n]
+            for a in range(n_ports[n]):                 # the group's outbound ports
+                if slot_side[s0 + a] < 0:
+                    jk, s = slot_joint[s0 + a], s0 + a
+                    par[jk] = -1 if grounded[n] else top[n]
+                    for r in range(3):
+                        acc = port_p[s, r]
+                        for c in range(3):
+                            acc += port_R[s, r, c] * placement_p[jk, c]
+                            R0[jk, r, c] = (port_R[s, r, 0] * placement_R[jk, 0, c]
+                                            + port_R[s, r, 1] * placement_R[jk, 1, c]
+                                            + port_R[s, r, 2] * placement_R[jk, 2, c])
+                        p0[jk, r] = acc
+    sort_ascending(joints, n_joints)
+    if n_joints < joints.shape[0]:
+        joints[n_joints] = -1                 # the end of the list for kinematics_pass
+    counts[N_VISIT], counts[N_JOINTS], counts[FRONT] = n_out, n_joints, n_front
+    counts[ASSEMBLED] = n_out - n_front
+
+
+# --- kernels: one node each --------------------------------------------------------------
+
+@inlined
+def group_leaf(F, tree, groups, gravity, kin, RF, pF, Rw, vF, impulse, hF, Phi, b, X, Q, tmp):
+    """Blocks of rigid group ``F`` (a body or a frozen node), theory (T19)-(T20):
+    (T2)-(T3) with its composite mass, centre of mass and inertia, its inbound
+    port at its frame and the port of each outbound joint ``k`` at ``k``'s child
+    frame, whose pose ``(R_rel[k], p_rel[k])`` the kinematics give in a frame at
+    ``(RF, pF)`` in ``F``'s (the identity but for the look-ahead). The known
+    wrench at the centre of mass: gravity and bias for orientation ``Rw`` and
+    velocity ``vF`` (:func:`~vdad.dca.known_wrench`), plus the external sums
+    (moment ``R^T N + vee(K R)`` about the origin, force ``R^T F``); with
+    ``impulse``, the momentum ``hF`` (6,) instead (the locking impulse). ``X``, ``Q``
+    (>= ports, 6, 6), ``tmp`` (>= 5, 6, 6): scratch."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    mass, com, inertia, Iinv, grounded, rel_R, rel_p, port_R, port_p, fN, fF, fK = groups
+    R_rel, p_rel = kin[0], kin[1]
+    P, s0 = n_ports[F], slot_base[F]
+    m, c = mass[F], com[F]
+    eye, zero, Rh, ph = tmp[2, :3, :3], tmp[2, 3, :3], tmp[3, :3, :3], tmp[3, 3, :3]
+    for r in range(3):
+        zero[r] = 0.0
+        for s in range(3):
+            eye[r, s] = 1.0 if r == s else 0.0
+    for a in range(P):
+        k = slot_joint[s0 + a]
+        if slot_side[s0 + a] > 0:
+            port_transform(eye, zero, c, X[a])
+            continue
+        for r in range(3):                        # (RF, pF)^-1 (R_rel, p_rel)
+            ph[r] = (RF[0, r] * (p_rel[k, 0] - pF[0]) + RF[1, r] * (p_rel[k, 1] - pF[1])
+                     + RF[2, r] * (p_rel[k, 2] - pF[2]))
+            for s in range(3):
+                Rh[r, s] = RF[0, r] * R_rel[k, 0, s] + RF[1, r] * R_rel[k, 1, s] \
+                    + RF[2, r] * R_rel[k, 2, s]
+        port_transform(Rh, ph, c, X[a])
+    f = tmp[1, 0]
+    if impulse:
+        for r in range(6):
+            f[r] = hF[r]
+    else:
+        known_wrench(m, c, inertia[F], vF, Rw, gravity, f)
+        KR, Fl = tmp[4, :3, :3], tmp[4, 3, :3]
+        for r in range(3):
+            Fl[r] = Rw[0, r] * fF[F, 0] + Rw[1, r] * fF[F, 1] + Rw[2, r] * fF[F, 2]
+            for s in range(3):
+                KR[r, s] = fK[F, r, 0] * Rw[0, s] + fK[F, r, 1] * Rw[1, s] + fK[F, r, 2] * Rw[2, s]
+        for r in range(3):
+            f[r] += Rw[0, r] * fN[F, 0] + Rw[1, r] * fN[F, 1] + Rw[2, r] * fN[F, 2]
+            f[3 + r] += Fl[r]
+        f[0] += KR[1, 2] - KR[2, 1] - (c[1] * Fl[2] - c[2] * Fl[1])
+        f[1] += KR[2, 0] - KR[0, 2] - (c[2] * Fl[0] - c[0] * Fl[2])
+        f[2] += KR[0, 1] - KR[1, 0] - (c[0] * Fl[1] - c[1] * Fl[0])
+    leaf_blocks(P, pair_base[F], s0, X, Q, m, Iinv[F], f, Phi, b, tmp[1, 1])
+
+
+@inlined
+def zero_blocks(F, tree, Phi, b):
+    """``Phi = 0``, ``b = 0`` on the ports of ``F``: a grounded group is immobile."""
+    n_ports, pair_base, slot_base = tree[5], tree[6], tree[7]
+    P = n_ports[F]
+    for k in range(pair_base[F], pair_base[F] + P * (P + 1) // 2):
+        for r in range(6):
+            for s in range(6):
+                Phi[k, r, s] = 0.0
+    for k in range(slot_base[F], slot_base[F] + P):
+        for r in range(6):
+            b[k, r] = 0.0
+
+
+@inlined
+def metric_node(i, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta, gamma, Wm, G, GY, H, M,
+                mt):
+    """The metric coefficients (T16)-(T18) of internal node ``C = nb + i``, after
+    :func:`~vdad.dca.assemble_node` (which leaves ``W_m``, ``G[a]``, ``GY[a]``), in
+    the block form of ``docs/adaptive.md``: ``Psi^C_ac = Psi^X_ac [same child] +
+    s_a s_c ((G_a Z - H_a Y) G_c^T - G_a Y H_c^T)``, ``p^C_a = p^X_a + s_a (2 H_a
+    beta - G_a r)``, ``eta^C = g^T D g + beta^T Psi_m beta + p_m·beta + eta^A +
+    eta^B``, with ``H_a = Psi^X_{a j_X}``, ``Z = Y Psi_m Y + N^T D N``, ``r = Y
+    (2 Psi_m beta + p_m) - 2 N^T D g``, ``N = 1 - W_m Y``, ``g = W_m beta + gamma``,
+    ``D = W A_J W^T``. Children outside the region (the front) have ``Psi = 0``,
+    ``p = 0``, ``eta = 0``. ``H``, ``M`` (max ports, 6, 6), ``mt`` (>= 7, 6, 6):
+    scratch."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    v_start, nv_joint = js[6], js[7]
+    C, A, B, j, jA, jB = nb + i, left[i], right[i], joint[i], port_A[i], port_B[i]
+    W, d, v0 = kin[4][j], nv_joint[j], v_start[j]
+    Yj, bj, gj = Y[i], beta[i], gamma[i]
+    Pm, D, Nm, Z, T1 = mt[0], mt[1], mt[2], mt[3], mt[4]
+    pm, g, rv, tv, t2 = mt[6, 0], mt[6, 1], mt[6, 2], mt[6, 3], mt[6, 4]
+    A_in, B_in = A >= nb and active[A], B >= nb and active[B]
+    e0 = 0.0
+    for r in range(6):
+        pm[r] = 0.0
+        for s in range(6):
+            Pm[r, s] = 0.0
+    if A_in:
+        kA, sA = pair_base[A] + pair_offset(n_ports[A], jA, jA), slot_base[A] + jA
+        e0 += eta[A]
+        for r in range(6):
+            pm[r] -= p[sA, r]
+            for s in range(6):
+                Pm[r, s] += Psi[kA, r, s]
+    if B_in:
+        kB, sB = pair_base[B] + pair_offset(n_ports[B], jB, jB), slot_base[B] + jB
+        e0 += eta[B]
+        for r in range(6):
+            pm[r] += p[sB, r]
+            for s in range(6):
+                Pm[r, s] += Psi[kB, r, s]
+    for r in range(6):                                   # D = W A_J W^T
+        for s in range(6):
+            acc = 0.0
+            for k in range(d):
+                acc += W[r, k] * wA[v0 + k] * W[s, k]
+            D[r, s] = acc
+    mm6(Wm, Yj, T1)                                      # N = 1 - W_m Y
+    for r in range(6):
+        for s in range(6):
+            Nm[r, s] = (1.0 if r == s else 0.0) - T1[r, s]
+    mv6(Wm, bj, g)                                       # g = W_m beta + gamma
+    for r in range(6):
+        g[r] += gj[r]
+    mm6(Yj, Pm, T1)                                      # Z = Y Psi_m Y + N^T D N
+    mm6(T1, Yj, Z)
+    mm6(D, Nm, T1)
+    for r in range(6):
+        for s in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += Nm[k, r] * T1[k, s]
+            Z[r, s] += acc
+    symmetric_part(Z, Z)
+    mv6(Pm, bj, tv)                                      # r
+    e = e0
+    for r in range(6):
+        e += bj[r] * tv[r] + pm[r] * bj[r]
+        tv[r] = 2.0 * tv[r] + pm[r]
+    mv6(Yj, tv, rv)
+    mv6(D, g, tv)
+    for r in range(6):
+        e += g[r] * tv[r]
+        acc = 0.0
+        for k in range(6):
+            acc += Nm[k, r] * tv[k]
+        rv[r] -= 2.0 * acc
+    eta[C] = e
+    P, s0 = n_ports[C], slot_base[C]
+    for a in range(P):
+        X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]
+        X_in = X >= nb and active[X]
+        if X_in:
+            copy_block(Psi, pair_base[X], n_ports[X], ia, jA if X == A else jB, H[a])
+        else:
+            for r in range(6):
+                for s in range(6):
+                    H[a, r, s] = 0.0
+        mv6(H[a], bj, tv)
+        mv6(G[a], rv, t2)
+        pa = p[s0 + a]
+        for r in range(6):
+            pa[r] = (p[slot_base[X] + ia, r] if X_in else 0.0) + sa * (2.0 * tv[r] - t2[r])
+        mm6(G[a], Z, M[a])                               # M_a = G_a Z - H_a Y
+        mm6(H[a], Yj, T1)
+        for r in range(6):
+            for s in range(6):
+                M[a, r, s] -= T1[r, s]
+    for a in range(P):
+        X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]
+        for cc in range(a, P):
+            out = Psi[pair_base[C] + pair_offset(P, a, cc)]
+            if slot_child[s0 + cc] == X and X >= nb and active[X]:
+                copy_block(Psi, pair_base[X], n_ports[X], ia, slot_index[s0 + cc], out)
+            else:
+                for r in range(6):
+                    for s in range(6):
+                        out[r, s] = 0.0
+            sign = sa * slot_sign[s0 + cc]
+            mmt6_add(M[a], G[cc], sign, out)
+            mmt6_add(GY[a], H[cc], -sign, out)
+            if cc == a:
+                symmetric_part(out, out)
+
+
+@inlined
+def metric_value(n, tree, f_J, Psi, p, eta):
+    """``A(C) = x^T Psi x + p·x + eta`` (T16) of node ``n`` for the wrenches ``x_a =
+    side_a f_J[joint_a]`` on its ports."""
+    n_ports, pair_base, slot_base, slot_joint, slot_side = tree[5], tree[6], tree[7], tree[8], \
+        tree[9]
+    P, s0 = n_ports[n], slot_base[n]
+    val = eta[n]
+    for a in range(P):
+        xa, sa = f_J[slot_joint[s0 + a]], slot_side[s0 + a]
+        for r in range(6):
+            val += sa * p[s0 + a, r] * xa[r]
+        for cc in range(a, P):
+            xc, sc = f_J[slot_joint[s0 + cc]], slot_side[s0 + cc]
+            B = Psi[pair_base[n] + pair_offset(P, a, cc)]
+            acc = 0.0
+            for r in range(6):
+                for s in range(6):
+                    acc += xa[r] * B[r, s] * xc[s]
+            val += (1.0 if cc == a else 2.0) * sa * sc * acc
+    return val
+
+
+@inlined
+def score(dt2, N, x):
+    """``dt^k N_M sqrt(x)``: a metric as a displacement per step times the coverage."""
+    return dt2 * N * np.sqrt(max(x, 0.0))
+
+
+@inlined
+def front_leaf(F, tree, groups, gravity, kin, top, impulse, h, Phi, b, X, Q, tmp):
+    """The leaf of front group ``F`` in the main passes: zero if grounded, else
+    :func:`group_leaf` at its top body's pose and velocity."""
+    if groups[4][F]:
+        zero_blocks(F, tree, Phi, b)
+        return
+    eye, zero = tmp[5, :3, :3], tmp[5, 3, :3]
+    for r in range(3):
+        zero[r] = 0.0
+        for s in range(3):
+            eye[r, s] = 1.0 if r == s else 0.0
+    t = top[F]
+    group_leaf(F, tree, groups, gravity, kin, eye, zero, kin[5][t], kin[7][t], impulse, h[F],
+               Phi, b, X, Q, tmp)
+
+
+@inlined
+def active_kinematics(js, region, q, qd, velocities, kin):
+    """:func:`~vdad.kinematics.kinematics_pass` over the active joints only, each
+    on its kinematic parent with its pre-placed joint frame (:func:`rebuild`)."""
+    ajs = (region[6], region[7], region[8], region[9], js[4], js[5], js[6], js[7], js[8], js[9],
+           js[10], js[11], js[12], js[13], js[14])
+    kinematics_pass(ajs, q, qd, velocities, *kin)
+
+
+@pass_kernel
+def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dwell, dt, keep,
+             kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau_in, kin, work,
+             region):
+    """One evaluation of adaptive dynamics at ``(q, qd)`` (the module's steps 1-4):
+    ``qdd`` of the active joints in ``work`` (zero where they coast). ``first``: the
+    step's first evaluation takes the decisions (metric coefficients, pruning,
+    look-ahead, budget heap); later ones (RK4) reuse them. With ``locking``
+    (``drop="lock"``) a node is also descended into while its velocity score
+    exceeds ``keep`` or it changed state less than ``dwell`` steps before ``step``:
+    the nodes left out are those to be locked at once. ``impulse``: the
+    locking impulse instead (leaves from the front's momenta ``h``, ``c_J = 0``,
+    ``tau = 0``, every active node solved), whose result are the new ``qd`` of the
+    active joints. Returns whether ``qdd`` is finite."""
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
+     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+    stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
+    stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
+    stage_stiffness, q_spring, damping, armature, gravity = bodies[8], bodies[9], bodies[10], \
+        bodies[11], bodies[4]
+    joint = tree[2]
+    active_kinematics(js, region, q, qd, not impulse, kin)
+    c_J = kin[8]
+    for x in range(counts[N_JOINTS]):                   # joint forces of the active joints
+        j = joints[x]
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            qdd[k] = 0.0
+            tau[k] = 0.0 if impulse else tau_in[k] - damping[k] * qd[k]
+        if impulse:
+            for r in range(6):
+                c_J[j, r] = 0.0
+        else:
+            for s in range(stage0[j], stage0[j] + n_stages[j]):
+                spring_force(s, stage_kind, stage_q, stage_v, stage_stiffness, q_spring, q, tau)
+    n_visit = counts[N_VISIT]
+    for e in range(n_visit):                            # bottom-up: front leaves, (T6)-(T12)
+        n = visit[e]
+        if n >= nb and active[n]:
+            assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta,
+                          gamma, X, GY, tmp)
+            if first and predictive and not impulse:
+                metric_node(n - nb, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta,
+                            gamma, tmp[5], X, GY, H, M, mt)
+        else:
+            front_leaf(n, tree, groups, gravity, kin, top, impulse, h, Phi, b, X, GY, tmp)
+    if first and locking and not impulse:              # (T15) of the state, for descend
+        velocity_metric(nb, js, tree, qd, region)
+    solved = 0
+    e = n_visit - 1
+    dt2 = dt * dt
+    while e >= 0:                                       # top-down (T10), (T13), pruned
+        n = visit[e]
+        if not (n >= nb and active[n]):
+            e -= 1
+            continue
+        go = impulse or desc[n]
+        if first and not impulse:
+            go = True
+            if predictive:
+                A[n] = metric_value(n, tree, f_J, Psi, p, eta)
+                go = budget > 0 or descend(n, locking, step, dwell, dt, keep, region)
+            desc[n] = go
+        if go:
+            solve_node(n - nb, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+            solved += 1
+            e -= 1
+            continue
+        lo = e - size[e] + 1                            # the subtree coasts: qdd = 0
+        for x in range(lo, e):
+            m = visit[x]
+            if m >= nb and active[m] and first:
+                desc[m] = False
+                A[m] = np.nan
+        e = lo - 1
+    if first and not impulse:
+        counts[SOLVED] = solved
+        counts[LOOKAHEAD] = 0
+        if not predictive:
+            direct_metric(budget, locking, step, dwell, dt, keep, nb, js, tree, up, qdd,
+                          region)
+        if lookahead_on:
+            lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, region)
+        if budget > 0:
+            run_heap(budget, kappa, dt2, nb, tree, roots, region)
+            for e in range(n_visit):
+                n = visit[e]
+                if n >= nb and active[n]:
+                    desc[n] = popped[n]
+                    if not popped[n]:
+                        j = joint[n - nb]
+                        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+                            qdd[k] = 0.0
+        accelerated = 0
+        for e in range(n_visit):
+            n = visit[e]
+            if n >= nb and active[n] and desc[n]:
+                accelerated += 1
+        counts[ACCELERATED] = accelerated
+    ok = True
+    for x in range(counts[N_JOINTS]):
+        j = joints[x]
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            ok = ok and np.isfinite(qdd[k])
+            if impulse:
+                qd[k] = qdd[k]
+    return ok
+
+
+@inlined
+def descend(n, locking, step, dwell, dt, keep, region):
+    """Threshold mode: whether the top-down pass descends into active node ``n``
+    (its parent reached): pinned, or its acceleration score above ``keep``; with
+    ``locking``, also while its velocity score is above ``keep`` or it changed
+    state less than ``dwell`` steps before ``step`` (it would not be rigidified)."""
+    pinned, since, A, V, N_M = region[1], region[3], region[14], region[15], region[17]
+    if pinned[n] or score(dt * dt, N_M[n], A[n]) > keep:
+        return True
+    return locking and (score(dt, N_M[n], V[n]) > keep or step - since[n] < dwell)
+
+
+@inlined
+def direct_metric(budget, locking, step, dwell, dt, keep, nb, js, tree, up, qdd, region):
+    """``metric="direct"``: (T14) summed bottom-up from the ``qdd`` of the whole
+    active region, then (threshold mode) the descent from the roots: a node is
+    descended into when its parent was and :func:`descend` says so; the joints of
+    the others get ``qdd = 0``. The same values and decisions as the predicted
+    metric (T16)-(T18)."""
+    left, right, joint = tree[0], tree[1], tree[2]
+    v_start, nv_joint = js[6], js[7]
+    active, desc, visit, counts, A, wA = (region[0], region[2], region[4], region[10],
+                                          region[14], region[18])
+    n_visit = counts[N_VISIT]
+    for e in range(n_visit):
+        n = visit[e]
+        if not (n >= nb and active[n]):
+            A[n] = 0.0
+            continue
+        i = n - nb
+        j = joint[i]
+        val = A[right[i]] + (A[left[i]] if left[i] >= 0 else 0.0)
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            val += wA[k] * qdd[k] * qdd[k]
+        A[n] = val
+    if budget > 0:
+        return
+    for e in range(n_visit - 1, -1, -1):
+        n = visit[e]
+        if not (n >= nb and active[n]):
+            continue
+        go = desc[up[n]] and descend(n, locking, step, dwell, dt, keep, region)
+        desc[n] = go
+        if not go:
+            j = joint[n - nb]
+            for k in range(v_start[j], v_start[j] + nv_joint[j]):
+                qdd[k] = 0.0
+
+
+@pass_kernel
+def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, region):
+    """The one-level look-ahead (``docs/adaptive.md``) of every internal front node
+    ``F`` whose parent was descended into: ``la[F]``, the metric of its joint ``j``
+    released at rest, its children ``A`` and ``B`` held rigid, for the wrenches on
+    ``F``'s ports known from the top-down pass: the children's group leaves in
+    ``F``'s frame (``A``'s is ``F``'s; ``B``'s at ``(rel_R, rel_p)`` in it),
+    :func:`~vdad.dca.joint_node` and :func:`~vdad.dca.solve_node` on ``j``. Writes
+    only rows that rigid nodes and joints own (and restores ``qdd = 0`` on ``j``);
+    ``la`` is NaN on the other front nodes."""
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
+     stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
+    grounded, rel_R, rel_p, port_R, port_p = groups[4], groups[5], groups[6], groups[7], groups[8]
+    R_rel, p_rel, S, T, W, R, pw, v, c_J, R3, v6, kwork = kin
+    active, desc, visit, counts, la, wA = (region[0], region[2], region[4], region[10],
+                                           region[16], region[18])
+    gravity, q_spring, armature = bodies[4], bodies[9], bodies[11]
+    Rw, vw, RF, pF = tmp[6, :3, :3], tmp[7, 0], tmp[6, 3:, :3], tmp[7, 1, :3]
+    counts[LOOKAHEAD] = 0
+    for e in range(counts[N_VISIT]):
+        F = visit[e]
+        if F < nb or active[F]:
+            continue
+        if not desc[up[F]]:
+            la[F] = np.nan
+            continue
+        counts[LOOKAHEAD] += 1
+        i = F - nb
+        A, B, j = left[i], right[i], joint[i]
+        joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
+                        stage_ref, stage_q, q, R_rel, p_rel, R3[1], R3[2], v6[1])
+        if n_stages[j] > 1:
+            joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
+                           stage_ref, stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W,
+                           R3, v6, kwork)
+        for r in range(6):
+            c_J[j, r] = 0.0
+        if A >= 0:                                   # j's child frame in A's frame
+            sA = slot_base[A] + port_A[i]
+            Rt, pt = R3[0], v6[0]
+            for r in range(3):
+                pt[r] = port_p[sA, r] + port_R[sA, r, 0] * p_rel[j, 0] \
+                    + port_R[sA, r, 1] * p_rel[j, 1] + port_R[sA, r, 2] * p_rel[j, 2]
+                for s in range(3):
+                    Rt[r, s] = port_R[sA, r, 0] * R_rel[j, 0, s] \
+                        + port_R[sA, r, 1] * R_rel[j, 1, s] + port_R[sA, r, 2] * R_rel[j, 2, s]
+            for r in range(3):
+                p_rel[j, r] = pt[r]
+                for s in range(3):
+                    R_rel[j, r, s] = Rt[r, s]
+        for side in range(2):                        # the leaves of A, then B
+            X_ = A if side == 0 else B
+            if X_ < 0:
+                continue
+            if grounded[X_]:
+                zero_blocks(X_, tree, Phi, b)
+                continue
+            for r in range(3):                       # F's frame (the world if grounded)
+                for s in range(3):
+                    Rw[r, s] = (1.0 if r == s else 0.0) if grounded[F] else R[top[F], r, s]
+                    RF[r, s] = 1.0 if r == s else 0.0
+                pF[r] = 0.0
+            for r in range(6):
+                vw[r] = 0.0 if grounded[F] else v[top[F], r]
+            if side == 1:                            # B's frame: (rel_R, rel_p) in F's
+                motion_to_child(rel_R[F], rel_p[F], vw, tmp[7, 2])
+                for r in range(3):
+                    pF[r] = rel_p[F, r]
+                    for s in range(3):
+                        RF[r, s] = rel_R[F, r, s]
+                for r in range(6):
+                    vw[r] = tmp[7, 2, r]
+                for r in range(3):
+                    for s in range(3):
+                        tmp[7, 3 + r, s] = Rw[r, 0] * RF[0, s] + Rw[r, 1] * RF[1, s] \
+                            + Rw[r, 2] * RF[2, s]
+                for r in range(3):
+                    for s in range(3):
+                        Rw[r, s] = tmp[7, 3 + r, s]
+            group_leaf(X_, tree, groups, gravity, kin, RF, pF, Rw, vw, False, vw, Phi, b, X,
+                       GY, tmp)
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            tau[k] = tau_in[k]
+        for s in range(stage0[j], stage0[j] + n_stages[j]):
+            spring_force(s, stage_kind, stage_q, stage_v, bodies[8], q_spring, q, tau)
+        joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, tmp)
+        solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+        val = 0.0
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            val += wA[k] * qdd[k] * qdd[k]
+            qdd[k] = 0.0
+        la[F] = val
+
+
+# --- budget mode ------------------------------------------------------------------------
+
+@inlined
+def run_heap(budget, kappa, dt2, nb, tree, roots, region):
+    """Budget mode: pop the ``budget`` highest scores from a max-heap, from the
+    roots down (active nodes count ``kappa`` times their score, front nodes their
+    look-ahead score; pinned nodes first), marking ``popped``."""
+    left, right = tree[0], tree[1]
+    active, pinned, visit, counts, A, la, N_M, heap, popped = (
+        region[0], region[1], region[4], region[10], region[14], region[16], region[17],
+        region[21], region[22])
+    keys, nodes = heap[0], heap[1]
+    for e in range(counts[N_VISIT]):
+        popped[visit[e]] = False
+    n = 0
+    for k in range(roots.shape[0]):
+        r = roots[k]
+        if r >= nb and (active[r] or not np.isnan(la[r])):
+            n = heap_push(keys, nodes, n, heap_key(r, kappa, dt2, active, pinned, A, la, N_M), r)
+    count = 0
+    while n > 0 and (count < budget or keys[0] == np.inf):
+        node = int(nodes[0])
+        n = heap_pop(keys, nodes, n)
+        popped[node] = True
+        count += 1
+        if active[node]:
+            for c in (left[node - nb], right[node - nb]):
+                if c >= nb and (active[c] or not np.isnan(la[c])):
+                    n = heap_push(keys, nodes, n,
+                                  heap_key(c, kappa, dt2, active, pinned, A, la, N_M), c)
+
+
+@inlined
+def heap_key(n, kappa, dt2, active, pinned, A, la, N_M):
+    """A node's key in the budget heap."""
+    if active[n] and pinned[n]:
+        return np.inf
+    if active[n]:
+        return kappa * score(dt2, N_M[n], A[n])
+    return score(dt2, N_M[n], la[n])
+
+
+@inlined
+def heap_push(keys, nodes, n, key, node):
+    """Push ``(key, node)`` on the max-heap ``keys[:n]``; returns its new size."""
+    i = n
+    keys[i], nodes[i] = key, node
+    while i > 0:
+        up = (i - 1) // 2
+        if keys[up] >= keys[i]:
+            break
+        keys[up], keys[i] = keys[i], keys[up]
+        nodes[up], nodes[i] = nodes[i], nodes[up]
+        i = up
+    return n + 1
+
+
+@inlined
+def heap_pop(keys, nodes, n):
+    """Remove the top of the max-heap ``keys[:n]``; returns its new size."""
+    n -= 1
+    keys[0], nodes[0] = keys[n], nodes[n]
+    i = 0
+    while 2 * i + 1 < n:
+        c = 2 * i + 1
+        if c + 1 < n and keys[c + 1] > keys[c]:
+            c += 1
+        if keys[i] >= keys[c]:
+            break
+        keys[i], keys[c] = keys[c], keys[i]
+        nodes[i], nodes[c] = nodes[c], nodes[i]
+        i = c
+    return n
+
+
+# --- the region update --------------------------------------------------------------------
+
+@pass_kernel
+def update_region(step, budget, lookahead_on, dt, threshold, keep, dwell, nb, js, tree, up, qd,
+                  region, stack):
+    """The region update after a step (``docs/adaptive.md``): the velocity metric
+    (T15) bottom-up; rigidify the highest active nodes not descended into whose
+    velocity score is at most ``keep`` (any, in budget mode) and that kept their
+    state ``dwell`` steps, and release the front nodes whose parent was descended
+    into and whose look-ahead score exceeds ``threshold`` (popped, in budget
+    mode), by :func:`change_region`. Returns the number of changed nodes."""
+    (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
+     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+    n_visit = counts[N_VISIT]
+    velocity_metric(nb, js, tree, qd, region)
+    cand, rel = stack[0], stack[1]
+    nc, nr = 0, 0
+    dt2 = dt * dt
+    for e in range(n_visit):
+        n = visit[e]
+        if n < nb:
+            continue
+        u, old = up[n], step - since[n] >= dwell
+        if active[n]:
+            if ((desc[u] or pinned[u]) and not desc[n] and old and not pinned[n]
+                    and (budget > 0 or score(dt, N_M[n], V[n]) <= keep)):
+                cand[nc] = e
+                nc += 1
+        elif lookahead_on and desc[u] and old:
+            if budget > 0:
+                hit = popped[n]
+            else:
+                hit = not np.isnan(la[n]) and score(dt2, N_M[n], la[n]) > threshold
+            if hit:
+                rel[nr] = n
+                nr += 1
+    return nc, nr
+
+
+@inlined
+def velocity_metric(nb, js, tree, qd, region):
+    """(T15) bottom-up over the active region: ``V(C) = V(A) + V(B) + qd_j^T V_j
+    qd_j`` (front nodes 0)."""
+    left, right, joint = tree[0], tree[1], tree[2]
+    v_start, nv_joint = js[6], js[7]
+    active, visit, counts, V, wV = region[0], region[4], region[10], region[15], region[19]
+    for e in range(counts[N_VISIT]):
+        n = visit[e]
+        if n >= nb and active[n]:
+            i = n - nb
+            j = joint[i]
+            val = V[right[i]] + (V[left[i]] if left[i] >= 0 else 0.0)
+            for k in range(v_start[j], v_start[j] + nv_joint[j]):
+                val += wV[k] * qd[k] * qd[k]
+            V[n] = val
+        else:
+            V[n] = 0.0
+
+
+@pass_kernel
+def lock_pruned(nb, up, region, stack):
+    """The consistent scheme (``drop="lock"``, ``docs/adaptive.md``): the highest
+    active nodes that the step's first evaluation did not descend into, to be
+    rigidified at once by :func:`change_region` (so no joint coasts): their visit
+    positions in ``stack[0]``. Returns how many."""
+    active, pinned, desc, visit, counts = region[0], region[1], region[2], region[4], region[10]
+    cand = stack[0]
+    nc = 0
+    for e in range(counts[N_VISIT]):
+        n = visit[e]
+        if n >= nb and active[n] and not desc[n] and (desc[up[n]] or pinned[up[n]]):
+            cand[nc] = e
+            nc += 1
+    return nc
+
+
+@pass_kernel
+def change_region(nc, nr, step, momentum, nb, js, tree, groups, top, roots, q, qd, kin, region,
+                  stack):
+    """Rigidify the active nodes at visit positions ``stack[0][:nc]`` with their
+    subtrees (group data frozen node by node, their joints' velocities zeroed) and
+    release the front nodes ``stack[1][:nr]``, then rebuild the region; with
+    ``momentum``, the new front's momenta ``h`` before the change, in each group's
+    axes about its centre of mass, for the locking impulse (a new group's summed
+    from the old groups it absorbs, a released node's split over its children),
+    which the caller then applies by the impulse passes of :func:`evaluate`."""
+    (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
+     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+    mass, com, inertia, grounded = groups[0], groups[1], groups[2], groups[4]
+    joint = tree[2]
+    v_start, nv_joint = js[6], js[7]
+    R, pw, v = kin[5], kin[6], kin[7]
+    cand, rel = stack[0], stack[1]
+    rel_R, rel_p = groups[5], groups[6]
+    left, right = tree[0], tree[1]
+    if nc > 0 and momentum:           # momenta before the change: world axes, about the origin
+        active_kinematics(js, region, q, qd, True, kin)
+        for e in range(counts[N_VISIT]):                # every front group's own
+            G = visit[e]
+            if (G >= nb and active[G]) or grounded[G]:
+                continue
+            for r in range(6):
+                h[G, r] = 0.0
+            group_momentum(G, R[top[G]], pw[top[G]], v[top[G]], mass, com, inertia, mt[7, 0],
+                           h[G])
+        for x in range(nc):                             # summed into each new group
+            e = cand[x]
+            hC = mt[7, 1]
+            for r in range(6):
+                hC[r] = 0.0
+            for y in range(e - size[e] + 1, e + 1):
+                G = visit[y]
+                if not ((G >= nb and active[G]) or grounded[G]):
+                    for r in range(6):
+                        hC[r] += h[G, r]
+            for r in range(6):
+                h[visit[e], r] = hC[r]
+        for x in range(nr):                             # split over a released node's children
+            F = rel[x]
+            if grounded[F]:
+                continue
+            i, t = F - nb, top[F]
+            Rx, px, vx = mt[8, :3, :3], mt[8, 3, :3], mt[8, 4]
+            for side in range(2):
+                X_ = left[i] if side == 0 else right[i]
+                if X_ < 0 or grounded[X_]:
+                    continue
+                for r in range(3):
+                    if side == 0:
+                        px[r] = pw[t, r]
+                    else:
+                        px[r] = pw[t, r] + R[t, r, 0] * rel_p[F, 0] + R[t, r, 1] * rel_p[F, 1] \
+                            + R[t, r, 2] * rel_p[F, 2]
+                    for c in range(3):
+                        Rx[r, c] = R[t, r, c] if side == 0 else (
+                            R[t, r, 0] * rel_R[F, 0, c] + R[t, r, 1] * rel_R[F, 1, c]
+                            + R[t, r, 2] * rel_R[F, 2, c])
+                if side == 0:
+                    for r in range(6):
+                        vx[r] = v[t, r]
+                else:
+                    motion_to_child(rel_R[F], rel_p[F], v[t], vx)
+                for r in range(6):
+                    h[X_, r] = 0.0
+                group_momentum(X_, Rx, px, vx, mass, com, inertia, mt[7, 0], h[X_])
+    rigidified = 0
+    for x in range(nc):
+        e = cand[x]
+        for y in range(e - size[e] + 1, e + 1):
+            n = visit[y]
+            if n >= nb and active[n]:
+                freeze_node(n, nb, tree, js, q, kin[0], kin[1], kin[9], groups)
+                j = joint[n - nb]
+                for k in range(v_start[j], v_start[j] + nv_joint[j]):
+                    qd[k] = 0.0
+                active[n], desc[n], since[n] = False, False, step
+                rigidified += 1
+    for x in range(nr):
+        active[rel[x]], since[rel[x]] = True, step
+    counts[RIGIDIFIED], counts[RELEASED] = rigidified, nr
+    if nc + nr == 0:
+        return
+    rebuild(nb, tree, js, groups, top, roots, region, stack)
+    if nc > 0 and momentum:          # the momenta in each front's axes, about its centre
+        active_kinematics(js, region, q, qd, False, kin)
+        L = mt[7, 3]
+        for e in range(counts[N_VISIT]):
+            F = visit[e]
+            if (F >= nb and active[F]) or grounded[F]:
+                continue
+            t, hF, c = top[F], h[F], mt[7, 4]
+            for r in range(3):
+                c[r] = pw[t, r] + R[t, r, 0] * com[F, 0] + R[t, r, 1] * com[F, 1] \
+                    + R[t, r, 2] * com[F, 2]
+            L[0] = hF[0] - (c[1] * hF[5] - c[2] * hF[4])
+            L[1] = hF[1] - (c[2] * hF[3] - c[0] * hF[5])
+            L[2] = hF[2] - (c[0] * hF[4] - c[1] * hF[3])
+            for r in range(3):
+                L[3 + r] = hF[3 + r]
+            for r in range(3):
+                hF[r] = R[t, 0, r] * L[0] + R[t, 1, r] * L[1] + R[t, 2, r] * L[2]
+                hF[3 + r] = R[t, 0, r] * L[3] + R[t, 1, r] * L[4] + R[t, 2, r] * L[5]
+
+
+@inlined
+def group_momentum(G, R, pw, v, mass, com, inertia, tmp, out):
+    """Add the momentum of rigid group ``G`` (frame at ``(R, pw)``, velocity ``v``
+    at its origin, its axes) to ``out`` (6,): angular about the world origin, then
+    linear, world axes. ``tmp`` (6,): scratch."""
+    w = v[:3]
+    vc0 = v[3] + w[1] * com[G, 2] - w[2] * com[G, 1]
+    vc1 = v[4] + w[2] * com[G, 0] - w[0] * com[G, 2]
+    vc2 = v[5] + w[0] * com[G, 1] - w[1] * com[G, 0]
+    I = inertia[G]
+    h0 = I[0, 0] * w[0] + I[0, 1] * w[1] + I[0, 2] * w[2]
+    h1 = I[1, 0] * w[0] + I[1, 1] * w[1] + I[1, 2] * w[2]
+    h2 = I[2, 0] * w[0] + I[2, 1] * w[1] + I[2, 2] * w[2]
+    m = mass[G]
+    for r in range(3):
+        tmp[r] = R[r, 0] * h0 + R[r, 1] * h1 + R[r, 2] * h2                 # L
+        tmp[3 + r] = m * (R[r, 0] * vc0 + R[r, 1] * vc1 + R[r, 2] * vc2)    # P
+    c0 = pw[0] + R[0, 0] * com[G, 0] + R[0, 1] * com[G, 1] + R[0, 2] * com[G, 2]
+    c1 = pw[1] + R[1, 0] * com[G, 0] + R[1, 1] * com[G, 1] + R[1, 2] * com[G, 2]
+    c2 = pw[2] + R[2, 0] * com[G, 0] + R[2, 1] * com[G, 1] + R[2, 2] * com[G, 2]
+    out[0] += tmp[0] + c1 * tmp[5] - c2 * tmp[4]
+    out[1] += tmp[1] + c2 * tmp[3] - c0 * tmp[5]
+    out[2] += tmp[2] + c0 * tmp[4] - c1 * tmp[3]
+    for r in range(3):
+        out[3 + r] += tmp[3 + r]
+
+
+# --- integration of the active joints ---------------------------------------------------------
+
+@pass_kernel
+def euler_active(dt, js, bodies, region, q, qd, qdd):
+    """Semi-implicit Euler on the active joints: ``qd += dt qdd``, then ``q ⊕= dt qd``."""
+    stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
+    stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
+    joints, counts = region[6], region[10]
+    for x in range(counts[N_JOINTS]):
+        j = joints[x]
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            qd[k] += dt * qdd[k]
+        for s in range(stage0[j], stage0[j] + n_stages[j]):
+            stage_step(s, stage_kind, stage_q, stage_v, q, qd, dt, q)
+
+
+@pass_kernel
+def rk4_active(k, dt, js, bodies, region, q, qd, qdd, kq, kv, qs, vs):
+    """RK4 on the active joints, as :func:`vdad.integrators.rk4`: ``k`` = 0..3
+    stores ``qdd`` of evaluation ``k - 1`` and sets the state ``(qs, vs)`` of
+    evaluation ``k`` and its rates ``kq[k]``; ``k = 4`` stores the last and ends
+    the step in ``(q, qd)``, quaternions normalised."""
+    stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
+    stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
+    joints, counts = region[6], region[10]
+    h = 0.0 if k == 0 else (dt if k == 3 else dt / 2)
+    for x in range(counts[N_JOINTS]):
+        j = joints[x]
+        for i in range(v_start[j], v_start[j] + nv_joint[j]):
+            if k > 0:
+                kv[k - 1, i] = qdd[i]
+            if k < 4:
+                vs[i] = qd[i] + h * kv[k - 1, i] if k > 0 else qd[i]
+            else:
+                qd[i] += dt / 6 * (kv[0, i] + 2 * kv[1, i] + 2 * kv[2, i] + kv[3, i])
+        for s in range(stage0[j], stage0[j] + n_stages[j]):
+            kind, iq = stage_kind[s], stage_q[s]
+            for i in range(iq, iq + (4 if kind == 2 else (3 if kind == 3 else 1))):
+                if k < 4:
+                    qs[i] = q[i] + h * kq[k - 1, i] if k > 0 else q[i]
+                else:
+                    q[i] += dt / 6 * (kq[0, i] + 2 * kq[1, i] + 2 * kq[2, i] + kq[3, i])
+            if k < 4:
+                stage_rate(s, stage_kind, stage_q, stage_v, qs, vs, kq[k])
+            else:
+                normalize_stage(s, stage_kind, stage_q, q)
+
+
+@pass_kernel
+def region_poses(js, region, q, kin):
+    """World poses of the active joints' child bodies at ``q`` (placements and
+    poses only): the frames of the front groups."""
+    active_kinematics(js, region, q, q, False, kin)
