@@ -231,7 +231,8 @@ def test_hybrid_bodies_stay_exact_during_a_run(lookahead):
 
 def test_incremental_group_data_equal_a_fresh_evaluation():
     """After a long run of rigidifications and releases (budget mode, no dwell or
-    hysteresis: some 230 of each in 200 steps; look-ahead; external wrenches changing on a few bodies every step), the group
+    hysteresis: some 230 of each in 200 steps; look-ahead; external wrenches
+    changing on a few bodies every step), the group
     data of every rigid front node, maintained node by node as nodes are frozen
     and force changes are carried up, equal an independent evaluation from the
     world poses of its bodies: total mass, centre of mass and inertia about it,

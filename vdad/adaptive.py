@@ -163,11 +163,6 @@ def resolve_weights(model, weights, name="weights"):
     return w
 
 
-def _padded(js, w):
-    """Diagonal weights ``w`` (nv,) of the joints of ``js``, (k, 6) zero-padded."""
-    return np.append(w[js.v_index], 0.0)[js.dof_index]
-
-
 class AdaptiveDynamics:
     """Adaptive forward dynamics of ``model`` on an assembly ``tree`` (work state;
     the compiled passes are :mod:`vdad.region`).

@@ -13,12 +13,11 @@ A port is ``(joint, side)``: side ``+1`` if the sub-assembly holds the joint's
 child body, ``-1`` if it holds the parent. Each node's ports are ordered
 ``alpha`` (from ``A``) then ``beta`` (from ``B``), as in (T11).
 
-The tree precomputes, per batch of internal nodes of equal height (``levels``,
-bottom-up; a height is split by port count where padding small nodes to the
-largest would more than double its work), the index arrays that gather a
-batch's inputs from and scatter its outputs to flat block stores (``Phi``:
-(nblocks, 6, 6), ``b``: (nslots, 6)); slot 0 is a zero block read for padding
-and ground leaves, slot 1 a trash slot written by padding.
+The tree precomputes the flat arrays the compiled passes read
+(:attr:`AssemblyTree.arrays`: per node its ports' blocks and slots in the stores
+``Phi`` (n_pairs, 6, 6) and ``b`` (n_slots, 6), per slot its port and where it
+comes from) and, for vectorised sums over nodes in numpy, the internal nodes in
+batches of equal height (``levels``, bottom-up).
 """
 
 from __future__ import annotations
@@ -33,7 +32,6 @@ from .errors import InputError
 from .model import check_model
 
 GROUND = -1
-ZERO, TRASH = 0, 1
 
 
 def _find(parent, i):
@@ -46,82 +44,14 @@ def _find(parent, i):
 
 @dataclass(frozen=True)
 class Level:
-    """Gather/scatter plan of a batch of k internal nodes of one height (P: most ports)."""
+    """A batch of k internal nodes of one height, for vectorised sums over nodes."""
 
     nodes: np.ndarray       # (k,) internal node ids
     joint: np.ndarray       # (k,) joint of each node
-    WA: np.ndarray          # (k,) block Phi^A_{jA jA}
-    WB: np.ndarray          # (k,) block Phi^B_{jB jB}
-    bA: np.ndarray          # (k,) slot b^A_{jA}
-    bB: np.ndarray          # (k,) slot b^B_{jB}
-    Phi0: np.ndarray        # (k, P, P) blocks of blockdiag(Phi^A, Phi^B) on C's ports
-    G: np.ndarray           # (k, P) blocks Phi^child_{a j_child}
-    sign: np.ndarray        # (k, P) -1 alpha, +1 beta, 0 padding
-    b0: np.ndarray          # (k, P) slots b^child_a
-    out_Phi: np.ndarray     # (k, P, P) blocks of Phi^C
-    out_b: np.ndarray       # (k, P) slots of b^C
-    port_joint: np.ndarray  # (k, P) joint of each port (nj: padding)
-    port_side: np.ndarray   # (k, P) side of each port (0: padding)
     node: np.ndarray        # (k,) node id (nb + internal index)
     node_A: np.ndarray      # (k,) node id of A (n_nodes: ground) and of B, and of
     node_B: np.ndarray      #   the parent node (n_nodes: none), for node stores
     node_up: np.ndarray
-
-    def padded(self, P, pad_joint):
-        """The batch with its port count padded to ``P`` (``pad_joint``: the joint
-        index that padding ports read, a zero wrench)."""
-        k, P0 = self.sign.shape
-        if P == P0:
-            return self
-        fields = {name: getattr(self, name) for name in self.__dataclass_fields__}
-        fill = {"Phi0": ZERO, "out_Phi": TRASH, "G": ZERO, "sign": 0, "b0": ZERO,
-                "out_b": TRASH, "port_joint": pad_joint, "port_side": 0}
-        for name, value in fill.items():
-            a = fields[name]
-            width = [(0, 0), (0, P - P0)] + ([(0, P - P0)] if a.ndim == 3 else [])
-            fields[name] = np.pad(a, width, constant_values=value)
-        return Level(**fields)
-
-    @staticmethod
-    def merge(levels, pad_joint):
-        """Batches of the rows of independent ``levels``: one, padded to the largest
-        port count, unless padding would more than double its block work (then
-        one per port count, as :class:`AssemblyTree` splits a height)."""
-        P = np.concatenate([np.full(len(lv.node), lv.sign.shape[1]) for lv in levels])
-        if len(P) * P.max() ** 2 <= 2 * np.sum(P**2) + 16:
-            groups = [levels]
-        else:
-            groups = [[lv for lv in levels if lv.sign.shape[1] == p] for p in np.unique(P)]
-        out = []
-        for group in groups:
-            Pg = max(lv.sign.shape[1] for lv in group)
-            padded = [lv.padded(Pg, pad_joint) for lv in group]
-            out.append(padded[0] if len(padded) == 1 else Level(
-                **{name: np.concatenate([getattr(lv, name) for lv in padded])
-                   for name in Level.__dataclass_fields__}))
-        return out
-
-    def restrict(self, rows, joint_map=None):
-        """The batch of ``rows`` only, with joints renumbered by ``joint_map`` if
-        given (joint -> local index; its last entry maps the padding joint ``nj``)."""
-        fields = {name: getattr(self, name)[rows] for name in self.__dataclass_fields__}
-        if joint_map is not None:
-            fields["joint"] = joint_map[fields["joint"]]
-            fields["port_joint"] = joint_map[fields["port_joint"]]
-        return Level(**fields)
-
-
-@dataclass(frozen=True)
-class LeafPlan:
-    """Ports of the body leaves, flattened (np_ ports, npairs port pairs)."""
-
-    body: np.ndarray        # (np_,) body of each leaf port
-    joint: np.ndarray       # (np_,) joint of the port
-    inbound: np.ndarray     # (np_,) True for the body's own joint
-    slot: np.ndarray        # (np_,) b slot
-    pair_h: np.ndarray      # (npairs,) leaf port indices h, k and the block
-    pair_k: np.ndarray      #   of Phi_hk
-    pair_block: np.ndarray
 
 
 def _merge(model, order):
@@ -186,13 +116,13 @@ class AssemblyTree:
     ``AssemblyTree(model, order)`` (joint names or indices, each once).
     Attributes: ``left``, ``right``, ``joint`` (internal nodes; children are
     body ids ``0..nb-1``, ``GROUND`` or ``nb + internal index``), ``height``,
-    ``levels`` (bottom-up list of :class:`Level` batches), ``leaves`` (:class:`LeafPlan`),
-    ``ports`` (per node), ``n_blocks``, ``n_slots``, ``n_nodes`` (bodies and
+    ``levels`` (bottom-up list of :class:`Level` batches),
+    ``ports`` (per node), ``n_slots``, ``n_nodes`` (bodies and
     internal nodes), ``up`` (parent node of every node, -1 at the roots),
     ``top`` (top body of every node: the body whose parent is outside it; -1 when
-    the node holds a ground leaf), ``n_ports`` (per node; ``max_ports``), ``block_base``,
-    ``slot_base`` (per node: its first block and slot), ``pair_base``, ``n_pairs``
-    (the compiled DCA's store of the blocks ``a <= c`` only, ``docs/design.md``), ``slot_joint``,
+    the node holds a ground leaf), ``n_ports`` (per node; ``max_ports``),
+    ``pair_base``, ``slot_base`` (per node: its first block and slot), ``n_pairs``
+    (the store of the blocks ``a <= c`` only, ``docs/design.md``), ``slot_joint``,
     ``slot_side`` (per slot: its port), ``port_A``, ``port_B`` (per internal
     node: where its joint's port is in A's and B's ports), ``slot_child``,
     ``slot_index``, ``slot_sign`` (per slot of an internal node: the child the
@@ -303,22 +233,20 @@ class AssemblyTree:
         model = self.model
         nb, nj = model.nb, model.nb
         n_nodes = nb + len(self.joint)
-        # storage: blocks P^2 and slots P for every body leaf and internal node
-        block_base = np.zeros(n_nodes, int)
+        # storage: blocks a <= c and slots P for every body leaf and internal node
         pair_base = np.zeros(n_nodes, int)
         slot_base = np.zeros(n_nodes, int)
-        nblk, npair, nslt = 2, 0, 2
+        npair, nslt = 0, 0
         self.post = np.array(depth_first(nb, self.left, self.right), np.int64)
         ends = np.flatnonzero(self.up[self.post] < 0) + 1       # after each root
         self.segments = np.concatenate([[0], ends]).astype(np.int64)
         for n in self.post:                 # stored in the order the passes visit them
             P = len(self.ports[n])
-            block_base[n], pair_base[n], slot_base[n] = nblk, npair, nslt
-            nblk += P * P
+            pair_base[n], slot_base[n] = npair, nslt
             npair += P * (P + 1) // 2
             nslt += P
-        self.n_blocks, self.n_pairs, self.n_slots = nblk, npair, nslt
-        self.block_base, self.pair_base, self.slot_base = block_base, pair_base, slot_base
+        self.n_pairs, self.n_slots = npair, nslt
+        self.pair_base, self.slot_base = pair_base, slot_base
         self.n_ports = np.array([len(p) for p in self.ports], int)
         self.max_ports = int(self.n_ports.max())
         self.slot_joint = np.full(nslt, nj)      # (joint, side) of every port slot
@@ -342,91 +270,14 @@ class AssemblyTree:
                 s = slot_base[nb + i] + a
                 self.slot_child[s], self.slot_index[s], self.slot_sign[s] = (
                     child, self.ports[child].index(pt), sign)
-
-        def port_index(node, port):
-            return self.ports[node].index(port)
-
-        def block(node, a, b):
-            if node == GROUND:
-                return ZERO
-            return block_base[node] + a * len(self.ports[node]) + b
-
-        def slot(node, a):
-            return ZERO if node == GROUND else slot_base[node] + a
-
-        # leaves
-        lb, lj, lin, lslot, ph, pk, pblk = [], [], [], [], [], [], []
-        for i in range(nb):
-            first = len(lb)
-            for a, (j, side) in enumerate(self.ports[i]):
-                lb.append(i)
-                lj.append(j)
-                lin.append(side > 0)
-                lslot.append(slot_base[i] + a)
-            P = len(self.ports[i])
-            for a in range(P):
-                for b in range(P):
-                    ph.append(first + a)
-                    pk.append(first + b)
-                    pblk.append(block(i, a, b))
-        self.leaves = LeafPlan(*(np.array(x, int) for x in (lb, lj)), np.array(lin, bool),
-                               *(np.array(x, int) for x in (lslot, ph, pk, pblk)))
-
         levels = []
         internal_height = self.height[nb:]
-        n_ports = np.array([len(self.ports[nb + i]) for i in range(len(self.joint))], int)
-        batches = []
         for h in range(1, self.depth + 1):
             ids = np.flatnonzero(internal_height == h)
-            P = n_ports[ids]
-            # one batch padded to the largest port count, unless padding would more
-            # than double its block work; then one batch per port count
-            if len(ids) * P.max() ** 2 <= 2 * np.sum(P**2) + 16:
-                batches.append(ids)
-            else:
-                batches += [ids[P == p] for p in np.unique(P)]
-        for ids in batches:
-            k = len(ids)
-            P = n_ports[ids].max()
-            arr = {name: np.zeros((k, P) if name in ("G", "sign", "b0", "out_b", "port_joint",
-                                                     "port_side") else (k, P, P), int)
-                   for name in ("Phi0", "G", "sign", "b0", "out_Phi", "out_b", "port_joint",
-                                "port_side")}
-            arr["out_Phi"][:] = TRASH
-            arr["out_b"][:] = TRASH
-            arr["port_joint"][:] = nj
-            WA, WB, bA, bB = (np.zeros(k, int) for _ in range(4))
-            for r, i in enumerate(ids):
-                node = nb + i
-                j, A, B = self.joint[i], self.left[i], self.right[i]
-                ports_A = [(j, -1)] if A == GROUND else list(self.ports[A])
-                ports_B = list(self.ports[B])
-                jA, jB = ports_A.index((j, -1)), ports_B.index((j, +1))
-                WA[r], WB[r] = block(A, jA, jA), block(B, jB, jB)
-                bA[r], bB[r] = slot(A, jA), slot(B, jB)
-                origin = []                 # (child node, index in child, sign)
-                for a, _pt in enumerate(ports_A):
-                    if a != jA:
-                        origin.append((A, a, jA, -1))
-                for b, _pt in enumerate(ports_B):
-                    if b != jB:
-                        origin.append((B, b, jB, +1))
-                P_C = len(self.ports[node])
-                assert P_C == len(origin)
-                for a, (ch, ia, jc, sg) in enumerate(origin):
-                    arr["G"][r, a] = block(ch, ia, jc)
-                    arr["sign"][r, a] = sg
-                    arr["b0"][r, a] = slot(ch, ia)
-                    arr["out_b"][r, a] = slot(node, a)
-                    arr["port_joint"][r, a], arr["port_side"][r, a] = self.ports[node][a]
-                    for b, (ch2, ib, _, _) in enumerate(origin):
-                        arr["Phi0"][r, a, b] = block(ch, ia, ib) if ch2 == ch else ZERO
-                        arr["out_Phi"][r, a, b] = block(node, a, b)
             node = nb + ids
             node_A = np.where(self.left[ids] == GROUND, n_nodes, self.left[ids])
             node_up = np.where(self.up[node] < 0, n_nodes, self.up[node])
-            levels.append(Level(ids, self.joint[ids], WA, WB, bA, bB, **arr, node=node,
-                                node_A=node_A, node_B=self.right[ids], node_up=node_up))
+            levels.append(Level(ids, self.joint[ids], node, node_A, self.right[ids], node_up))
         self.levels = tuple(levels)
 
     @cached_property
