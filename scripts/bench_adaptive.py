@@ -36,10 +36,10 @@ SIZES = (300, 1000, 10000)
 ACTIVE = (1, 5, 20, 50, 100, 300)
 PREDECESSOR = (300, 100, 50, 20, 1)        # Redon et al. 2005, 300-joint pendulum
 THRESHOLDS = (0.0, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3)
-VARIANTS = {"look-ahead, hysteresis (default)": {},
+VARIANTS = {"look-ahead, hysteresis, drop lock (default)": {},
             "no look-ahead": {"lookahead": False},
             "look-ahead, no hysteresis (kappa 1, dwell 0)": {"kappa": 1.0, "dwell": 0},
-            "drop lock (consistent)": {"drop": "lock"}}
+            "drop coast (the paper)": {"drop": "coast"}}
 MUJOCO_MAX = 1000                          # mj compiles chains up to ~1000 (anchors §1)
 
 
