@@ -554,6 +554,10 @@ def test_adaptive_options_are_checked():
         scene.simulator(method="adaptive", budget=-1)
     with pytest.raises(InputError, match="budget must be"):
         scene.simulator(method="adaptive", budget=2.5)
+    with pytest.raises(InputError, match="drop scheme 'bogus'"):
+        scene.simulator(method="adaptive", threshold=1e-3, drop="bogus")
+    with pytest.raises(InputError, match="metric evaluation 'bogus'"):
+        scene.simulator(method="adaptive", threshold=1e-3, metric="bogus")
     with pytest.raises(InputError, match="policy 'bogus'"):
         scene.simulator(method="adaptive", threshold=1e-3, policy="bogus")
     with pytest.raises(InputError, match="kappa must be >= 1, got 0.5"):

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._linalg import inlined, inverse3, kernel, mm3, mv3, pass_kernel
-from .kinematics import joint_placement
+from .kinematics import joint_placement, plan
 
 
 class RigidGroups:
@@ -77,8 +77,6 @@ class RigidGroups:
         (:func:`freeze_node`); ``kin`` (a :class:`~vdad.kinematics.Kinematics` of
         the whole model) lends the rows of the frozen joints as scratch."""
         nodes = np.sort(np.asarray(nodes, np.int64))
-        from .kinematics import plan
-
         freeze_nodes(nodes, self.tree.model.nb, self.tree.arrays, plan(self.tree.model).arrays,
                      q, kin.R_rel, kin.p_rel, kin.R3, self.arrays)
         return len(nodes)

@@ -347,6 +347,20 @@ def joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, st
 
 
 @inlined
+def joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, work):
+    """Joint ``j`` of the set ``js`` at ``q``: its placement
+    (:func:`joint_placement`) and, for a multi-stage joint, its subspaces
+    (:func:`joint_subspace`)."""
+    (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
+     stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
+    joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
+                    stage_ref, stage_q, q, R_rel, p_rel, R3[1], R3[2], v6[1])
+    if n_stages[j] > 1:
+        joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, stage_ref,
+                       stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W, R3, v6, work)
+
+
+@inlined
 def body_pose(j, parent, R_rel, p_rel, R, p):
     """World pose of joint ``j``'s child body from its parent's: ``R = R_par R_rel``,
     ``p = p_par + R_par p_rel``."""
@@ -409,12 +423,7 @@ def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c, R3
         j = order[idx]
         if j < 0:
             break
-        joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
-                        stage_ref, stage_q, q, R_rel, p_rel, R3[1], R3[2], v6[1])
-        if n_stages[j] > 1:
-            joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
-                           stage_ref, stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W,
-                           R3, v6, work)
+        joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, work)
         body_pose(j, parent, R_rel, p_rel, R, p)
         if velocities:
             body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_joint,

@@ -57,7 +57,7 @@ from .dca import (
 )
 from .hybrid import freeze_node, sort_ascending
 from .integrators import normalize_stage, stage_rate, stage_step
-from .kinematics import joint_placement, joint_subspace, kinematics_pass
+from .kinematics import joint_motion, kinematics_pass
 
 #: indices of :attr:`RegionData.counts`
 N_VISIT, N_JOINTS, ASSEMBLED, FRONT, SOLVED, ACCELERATED, LOOKAHEAD, RIGIDIFIED, RELEASED = \
@@ -566,22 +566,11 @@ def direct_metric(budget, locking, step, dwell, dt, keep, nb, js, tree, up, qdd,
     descended into when its parent was and :func:`descend` says so; the joints of
     the others get ``qdd = 0``. The same values and decisions as the predicted
     metric (T16)-(T18)."""
-    left, right, joint = tree[0], tree[1], tree[2]
-    v_start, nv_joint = js[6], js[7]
+    joint, v_start, nv_joint = tree[2], js[6], js[7]
     active, desc, visit, counts, A, wA = (region[0], region[2], region[4], region[10],
                                           region[14], region[18])
     n_visit = counts[N_VISIT]
-    for e in range(n_visit):
-        n = visit[e]
-        if not (n >= nb and active[n]):
-            A[n] = 0.0
-            continue
-        i = n - nb
-        j = joint[i]
-        val = A[right[i]] + (A[left[i]] if left[i] >= 0 else 0.0)
-        for k in range(v_start[j], v_start[j] + nv_joint[j]):
-            val += wA[k] * qdd[k] * qdd[k]
-        A[n] = val
+    sum_up(nb, js, tree, qdd, wA, A, region)
     if budget > 0:
         return
     for e in range(n_visit - 1, -1, -1):
@@ -628,12 +617,7 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
         counts[LOOKAHEAD] += 1
         i = F - nb
         A, B, j = left[i], right[i], joint[i]
-        joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
-                        stage_ref, stage_q, q, R_rel, p_rel, R3[1], R3[2], v6[1])
-        if n_stages[j] > 1:
-            joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
-                           stage_ref, stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W,
-                           R3, v6, kwork)
+        joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, kwork)
         for r in range(6):
             c_J[j, r] = 0.0
         if A >= 0:                                   # j's child frame in A's frame
@@ -809,22 +793,28 @@ def update_region(step, budget, lookahead_on, dt, threshold, keep, dwell, nb, js
 
 @inlined
 def velocity_metric(nb, js, tree, qd, region):
-    """(T15) bottom-up over the active region: ``V(C) = V(A) + V(B) + qd_j^T V_j
-    qd_j`` (front nodes 0)."""
+    """(T15) bottom-up over the active region (:func:`sum_up` of ``qd``)."""
+    sum_up(nb, js, tree, qd, region[19], region[15], region)
+
+
+@inlined
+def sum_up(nb, js, tree, x, w, out, region):
+    """``out(C) = out(A) + out(B) + x_j^T diag(w_j) x_j`` over the active nodes in
+    visit order (front nodes 0): (T14) with ``x = qdd``, (T15) with ``x = qd``."""
     left, right, joint = tree[0], tree[1], tree[2]
     v_start, nv_joint = js[6], js[7]
-    active, visit, counts, V, wV = region[0], region[4], region[10], region[15], region[19]
+    active, visit, counts = region[0], region[4], region[10]
     for e in range(counts[N_VISIT]):
         n = visit[e]
         if n >= nb and active[n]:
             i = n - nb
             j = joint[i]
-            val = V[right[i]] + (V[left[i]] if left[i] >= 0 else 0.0)
+            val = out[right[i]] + (out[left[i]] if left[i] >= 0 else 0.0)
             for k in range(v_start[j], v_start[j] + nv_joint[j]):
-                val += wV[k] * qd[k] * qd[k]
-            V[n] = val
+                val += w[k] * x[k] * x[k]
+            out[n] = val
         else:
-            V[n] = 0.0
+            out[n] = 0.0
 
 
 @pass_kernel
