@@ -55,19 +55,22 @@ def test_quick_writes_every_file(quick):
 
 
 def test_quick_has_the_papers_trends(quick):
+    """Fewer active joints and less work (nodes the dynamics touches) as the
+    threshold or the distance grows; the time per step is a benchmark's to judge
+    (docs/reproduction.md), not a test's."""
     fig8 = _rows(quick / "figure8.csv")
     for method in ("view-bvh", "view-oq"):
         rows = sorted((r for r in fig8 if r["method"] == method),
                       key=lambda r: float(r["error threshold"]))
         assert all(not r["failure"] for r in rows)
-        lo, hi = rows[0], rows[-1]                  # more threshold: fewer joints, less time
+        lo, hi = rows[0], rows[-1]                  # more threshold: fewer joints, less work
         assert float(hi["active joints"]) < 0.5 * float(lo["active joints"])
-        assert float(hi["ms/step"]) < float(lo["ms/step"])
+        assert float(hi["node visits"]) < 0.5 * float(lo["node visits"])
     fig9 = sorted((r for r in _rows(quick / "figure9.csv") if r["method"] == "view-oq"),
                   key=lambda r: float(r["viewer distance (m)"]))
-    near, far = fig9[0], fig9[-1]                   # more distance: fewer joints, less time
+    near, far = fig9[0], fig9[-1]                   # more distance: fewer joints, less work
     assert float(far["active joints"]) < 0.5 * float(near["active joints"])
-    assert float(far["ms/step"]) < float(near["ms/step"])
+    assert float(far["node visits"]) < 0.5 * float(near["node visits"])
     table1 = _rows(quick / "table1.csv")
     dca = [r for r in table1 if r["method"] == "dca"][0]
     assert float(dca["active joints"]) == 20 and float(dca["mean px error"]) == 0
@@ -213,7 +216,8 @@ def test_report_reads_only_checked_fields(small_result, tmp_path):
     a run that diverged at its first step (no timing, no frames)."""
     kept = _checked_only(small_result, RESULT_FIELDS)
     diverged = {"ms_per_step": None, "reference_ms_per_step": None, "speedup": None,
-                "active_joints": None, "joints": 4, "steps": 0, "failure": "diverged",
+                "active_joints": None, "node_visits": None, "joints": 4, "steps": 0,
+                "failure": "diverged",
                 "error": {m: {"mean": None, "max": None, "sum": None} for m in TRACE[1:]},
                 "trace": {k: [] for k in TRACE}}
     assert check_result(diverged) is None
@@ -255,7 +259,8 @@ def test_damaged_stored_runs_are_recomputed_with_one_line_each(tmp_path, capsys,
     assert len(lines) == 2
     assert lines[0] == (
         f"vdad reproduce: stored record {incomplete} is incomplete (no 'ms_per_step', "
-        f"'reference_ms_per_step', 'speedup', 'active_joints', 'joints', 'failure', 'error', "
+        f"'reference_ms_per_step', 'speedup', 'active_joints', 'node_visits', 'joints', "
+        f"'failure', 'error', "
         f"'trace'); recomputing it")
     head = f"vdad reproduce: stored record {folder} is a folder, not a record file (moved aside to "
     assert lines[1].startswith(head) and lines[1].endswith(".aside); recomputing it")

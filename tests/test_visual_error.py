@@ -60,6 +60,7 @@ def test_identical_runs_measure_exactly_zero(scene):
     assert_all_zero(trace)
     assert info["steps"] == 60 and info["failure"] is None
     assert info["active_joints"] == scene.model.nb
+    assert info["node_visits"] == 2 * scene.model.nb            # a leaf and a joint node each
     assert info["ms_per_step"] > 0 and info["reference_ms_per_step"] > 0
 
     reference = record(scene.simulator(method="dca"), 60, every=10)
@@ -81,6 +82,7 @@ def test_perturbed_and_adaptive_runs_measure_positive_errors(scene):
     assert summary["frames"] == 10 and info["failure"] is None
     assert summary["mean_px"]["max"] > 1 and summary["differing_pixels"]["max"] > 100
     assert info["active_joints"] < scene.model.nb
+    assert 0 < info["node_visits"] < 2 * scene.model.nb
 
 
 def rotated(model, angle):

@@ -102,16 +102,16 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
     """Active joints and time per step against ``x_of(config)`` per view method."""
     plt = _pyplot()
     dca = [r for r in rows if r["config"]["method"] == "dca"]
-    header = ["method", xlabel, "active joints", "ms/step", "DCA ms/step", "speed-up",
-              "mean px error", "differing px/frame", "failure"]
+    header = ["method", xlabel, "active joints", "node visits", "ms/step", "DCA ms/step",
+              "speed-up", "mean px error", "differing px/frame", "failure"]
     table = []
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for m in ("view-bvh", "view-oq"):
         mine = sorted((r for r in rows if r["config"]["method"] == m),
                       key=lambda r: x_of(r["config"]))
         for r in mine:
-            table.append([m, x_of(r["config"]), r["active_joints"], r["ms_per_step"],
-                          r["reference_ms_per_step"], r["speedup"], _err(r),
+            table.append([m, x_of(r["config"]), r["active_joints"], r["node_visits"],
+                          r["ms_per_step"], r["reference_ms_per_step"], r["speedup"], _err(r),
                           _err(r, "differing_pixels"), _failed(r)])
         ok = [r for r in mine if not r["failure"]]
         bad = [r for r in mine if r["failure"]]
@@ -278,6 +278,7 @@ def _trend_lines(rows, x_of, what):
             continue
         xs = [x_of(r["config"]) for r in mine]
         a = decreasing(xs, [r["active_joints"] for r in mine], 0.02)
+        v = decreasing(xs, [r["node_visits"] for r in mine], 0.02)
         t = decreasing(xs, [r["ms_per_step"] for r in mine], 0.10)
         lo, hi = min(mine, key=lambda r: x_of(r["config"])), max(mine, key=lambda r:
                                                                   x_of(r["config"]))
@@ -285,7 +286,9 @@ def _trend_lines(rows, x_of, what):
             f"- {m}: as {what} grows from {_num(x_of(lo['config']))} to "
             f"{_num(x_of(hi['config']))}, active joints go {_num(lo['active_joints'])} -> "
             f"{_num(hi['active_joints'])} ({'decreasing, as the paper' if a else 'not monotone'})"
-            f", ms per step {_num(lo['ms_per_step'])} -> {_num(hi['ms_per_step'])} "
+            f", node visits per step {_num(lo['node_visits'])} -> {_num(hi['node_visits'])} "
+            f"({'decreasing' if v else 'not monotone'}), "
+            f"ms per step {_num(lo['ms_per_step'])} -> {_num(hi['ms_per_step'])} "
             f"({'decreasing' if t else 'not monotone'}); "
             f"{failed} run(s) diverged.")
     return lines

@@ -54,7 +54,8 @@ _NUMBER = ("a number or null", _is_number)
 # for the error summary and the trace: a stored run must hold all of it to be reused.
 RESULT_FIELDS = {
     "ms_per_step": _NUMBER, "reference_ms_per_step": _NUMBER, "speedup": _NUMBER,
-    "active_joints": _NUMBER, "joints": ("an int", _is_count), "steps": ("an int", _is_count),
+    "active_joints": _NUMBER, "node_visits": _NUMBER, "joints": ("an int", _is_count),
+    "steps": ("an int", _is_count),
     "failure": ("a str or null", _is_text),
     "error": {m: {stat: _NUMBER for stat in ("mean", "max", "sum")} for m in TRACE[1:]},
     "trace": {k: ("a list of numbers or nulls", _is_series) for k in TRACE},
@@ -159,7 +160,8 @@ def run_config(config) -> dict:
     (a sweep's function).
 
     Returns ``ms_per_step`` and ``reference_ms_per_step`` (timed in the same
-    process), ``speedup``, mean ``active_joints`` of ``joints``, ``steps``,
+    process), ``speedup``, mean ``active_joints`` of ``joints`` and
+    ``node_visits`` per step, ``steps``,
     ``failure`` (the message if the run diverged; its numbers then cover the
     steps before), ``error`` (:meth:`~vdad.visual_error.ErrorTrace.summary`) and
     the per-frame ``trace``."""

@@ -376,8 +376,11 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
     Returns the :class:`ErrorTrace` and a dict ``info``: ``ms_per_step`` (of the
     ``sim.step`` calls only), ``reference_ms_per_step`` (of the lockstep reference
     or the Trajectory's), ``steps`` taken, ``failure`` (None or the
-    SimulationError's message) and ``active_joints``, the mean number of active
-    joints per step (``model.nb`` without adaptive dynamics)."""
+    SimulationError's message), ``active_joints``, the mean number of active
+    joints per step (``model.nb`` without adaptive dynamics), and ``node_visits``,
+    the mean number of assembly-tree nodes the dynamics touched per step
+    (:attr:`~vdad.adaptive.StepStats.node_visits`; every node without adaptive
+    dynamics): the work that the time per step follows once coverage is paid."""
     from tqdm import tqdm
 
     _check_simulator(sim)
@@ -433,15 +436,18 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
     done = sim.step_count - start_step
     history = sim.history[start_history:]
     if sim.adaptive is None:
-        active = float(sim.model.nb)
+        active, visits = float(sim.model.nb), float(sim.tree.n_nodes)
+    elif history:
+        active = float(np.mean([s.active_joints for s in history]))
+        visits = float(np.mean([s.node_visits for s in history]))
     else:
-        active = float(np.mean([s.active_joints for s in history])) if history else np.nan
+        active = visits = np.nan
     if not lockstep:
         reference_ms = reference.ms_per_step
     else:
         reference_ms = 1e3 * reference_elapsed / (every * len(rows)) if rows else np.nan
     info = dict(ms_per_step=1e3 * elapsed / done if done else np.nan,
                 reference_ms_per_step=reference_ms, steps=done, failure=failure,
-                active_joints=active)
+                active_joints=active, node_visits=visits)
     table = np.array(rows, dtype=float).reshape(-1, 4)                     # (F, 4)
     return ErrorTrace(*table.T), info
