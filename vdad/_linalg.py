@@ -230,6 +230,15 @@ def mmt6_add_symmetric(A, B, s, out):
 # --- 3x3 and 3-vector products -----------------------------------------------------------
 
 @inlined
+def identity_pose(R, p):
+    """``R = I`` (3, 3), ``p = 0`` (3,): the identity placement."""
+    for r in range(3):
+        p[r] = 0.0
+        for s in range(3):
+            R[r, s] = 1.0 if r == s else 0.0
+
+
+@inlined
 def mm3(A, B, out):
     """``out = A B`` (3, 3)."""
     for i in range(3):

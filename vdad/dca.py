@@ -39,6 +39,7 @@ from numba import prange
 from ._linalg import (
     cholesky,
     finite,
+    identity_pose,
     inlined,
     inverse_inertia_transpose,
     kernel,
@@ -213,10 +214,7 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
     P, s0 = n_ports[i], slot_base[i]
     m, c = mass[i], com[i]
     eye, zero = tmp[2, :3, :3], tmp[2, 3, :3]
-    for r in range(3):
-        zero[r] = 0.0
-        for s in range(3):
-            eye[r, s] = 1.0 if r == s else 0.0
+    identity_pose(eye, zero)
     for h in range(P):
         j = slot_joint[s0 + h]
         if slot_side[s0 + h] > 0:

@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._linalg import inlined, inverse3, kernel, mm3, mv3, pass_kernel
+from .heaps import sort_ascending
 from .kinematics import joint_placement, plan
 
 
@@ -268,29 +269,6 @@ def carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order):
                 dK[r, s] = 0.0
         mark[node] = False
     return n
-
-
-@inlined
-def sort_ascending(a, n):
-    """Heapsort of ``a[:n]`` in place (O(n log n), no allocation)."""
-    for start in range(n // 2 - 1, -1, -1):
-        sift_down(a, start, n)
-    for end in range(n - 1, 0, -1):
-        a[0], a[end] = a[end], a[0]
-        sift_down(a, 0, end)
-
-
-@inlined
-def sift_down(a, root, n):
-    """Restore the max-heap property of ``a[:n]`` below ``root``."""
-    while 2 * root + 1 < n:
-        child = 2 * root + 1
-        if child + 1 < n and a[child + 1] > a[child]:
-            child += 1
-        if a[root] >= a[child]:
-            return
-        a[root], a[child] = a[child], a[root]
-        root = child
 
 
 @kernel

@@ -54,10 +54,8 @@ class JointSet:
 
     joints [k]: model joint ids; parent [k]: local parent (-1: world); order [k]:
     the joints parents first; root_of [k]: root of each joint's tree.
-    pre_R [k,3,3], pre_p [k,3]: constant pose of each joint's parent frame in its
-    local parent's body frame (``None``: identity, the model's own tree);
-    R0 [k,3,3], p0 [k,3]: the joint frame in the local parent's frame (pre-placement
-    then placement). q_index [nq], v_index [nv]: model indices of the local ``q``
+    R0 [k,3,3], p0 [k,3]: the joint frame in the local parent's frame (the
+    placement). q_index [nq], v_index [nv]: model indices of the local ``q``
     and ``qd``; q_start, v_start, nv_joint [k]: the local layout per joint.
     Stage arrays ``stage_*`` [ns] as in :class:`~vdad.model.Model`, with local
     joint, ``q`` and ``qd`` indices; stage0, n_stages [k]: each joint's stages;
@@ -73,8 +71,6 @@ class JointSet:
     parent: np.ndarray
     order: np.ndarray
     root_of: np.ndarray
-    pre_R: np.ndarray | None
-    pre_p: np.ndarray | None
     R0: np.ndarray
     p0: np.ndarray
     nq: int
@@ -181,9 +177,8 @@ def forest_order(parent, order, root_of):
         count[depth[i]] += 1
 
 
-def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
-    """The :class:`JointSet` of ``joints`` (k,) with local ``parent`` (k,) and
-    constant pre-placements ``pre_R`` (k, 3, 3), ``pre_p`` (k, 3) (vectorised)."""
+def joint_set(model, joints, parent) -> JointSet:
+    """The :class:`JointSet` of ``joints`` (k,) with local ``parent`` (k,) (vectorised)."""
     first_stage, s_pad_all, S_all, T_all, W_all, T_pad_all = _model_tables(model)
     js = np.asarray(joints, int)
     parent = np.asarray(parent, int)
@@ -204,11 +199,9 @@ def joint_set(model, joints, parent, pre_R=None, pre_p=None) -> JointSet:
     order, root_of = np.empty(k, np.int64), np.empty(k, np.int64)
     forest_order(parent, order, root_of)
     R0, p0 = model.placement_R[js], model.placement_p[js]
-    if pre_R is not None:
-        R0, p0 = pre_R @ R0, pre_p + np.einsum("kij,kj->ki", pre_R, p0)
     i64 = np.int64
     return JointSet(
-        model, js, parent, order, root_of, pre_R, pre_p, np.ascontiguousarray(R0),
+        model, js, parent, order, root_of, np.ascontiguousarray(R0),
         np.ascontiguousarray(p0), nq, nv, q_index, v_index, q_start.astype(i64),
         v_start.astype(i64), nv_j.astype(i64), (np.cumsum(ns_j) - ns_j).astype(i64),
         ns_j.astype(i64), sj, stage_kind.astype(i64), model.stage_axis[stages],

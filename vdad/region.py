@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._linalg import (
+    identity_pose,
     inlined,
     mm6,
     mmt6_add,
@@ -55,7 +56,8 @@ from .dca import (
     solve_node,
     spring_force,
 )
-from .hybrid import freeze_node, sort_ascending
+from .heaps import heap_pop, heap_push, sort_ascending
+from .hybrid import freeze_node
 from .integrators import normalize_stage, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
 
@@ -218,10 +220,7 @@ def group_leaf(F, tree, groups, gravity, kin, RF, pF, Rw, vF, impulse, hF, Phi, 
     P, s0 = n_ports[F], slot_base[F]
     m, c = mass[F], com[F]
     eye, zero, Rh, ph = tmp[2, :3, :3], tmp[2, 3, :3], tmp[3, :3, :3], tmp[3, 3, :3]
-    for r in range(3):
-        zero[r] = 0.0
-        for s in range(3):
-            eye[r, s] = 1.0 if r == s else 0.0
+    identity_pose(eye, zero)
     for a in range(P):
         k = slot_joint[s0 + a]
         if slot_side[s0 + a] > 0:
@@ -420,10 +419,7 @@ def front_leaf(F, tree, groups, gravity, kin, top, impulse, h, Phi, b, X, Q, tmp
         zero_blocks(F, tree, Phi, b)
         return
     eye, zero = tmp[5, :3, :3], tmp[5, 3, :3]
-    for r in range(3):
-        zero[r] = 0.0
-        for s in range(3):
-            eye[r, s] = 1.0 if r == s else 0.0
+    identity_pose(eye, zero)
     t = top[F]
     group_leaf(F, tree, groups, gravity, kin, eye, zero, kin[5][t], kin[7][t], impulse, h[F],
                Phi, b, X, Q, tmp)
@@ -717,39 +713,6 @@ def heap_key(n, kappa, dt2, active, pinned, A, la, N_M):
     if active[n]:
         return kappa * score(dt2, N_M[n], A[n])
     return score(dt2, N_M[n], la[n])
-
-
-@inlined
-def heap_push(keys, nodes, n, key, node):
-    """Push ``(key, node)`` on the max-heap ``keys[:n]``; returns its new size."""
-    i = n
-    keys[i], nodes[i] = key, node
-    while i > 0:
-        up = (i - 1) // 2
-        if keys[up] >= keys[i]:
-            break
-        keys[up], keys[i] = keys[i], keys[up]
-        nodes[up], nodes[i] = nodes[i], nodes[up]
-        i = up
-    return n + 1
-
-
-@inlined
-def heap_pop(keys, nodes, n):
-    """Remove the top of the max-heap ``keys[:n]``; returns its new size."""
-    n -= 1
-    keys[0], nodes[0] = keys[n], nodes[n]
-    i = 0
-    while 2 * i + 1 < n:
-        c = 2 * i + 1
-        if c + 1 < n and keys[c + 1] > keys[c]:
-            c += 1
-        if keys[i] >= keys[c]:
-            break
-        keys[i], keys[c] = keys[c], keys[i]
-        nodes[i], nodes[c] = nodes[c], nodes[i]
-        i = c
-    return n
 
 
 # --- the region update --------------------------------------------------------------------
