@@ -198,11 +198,9 @@ def test_hybrid_bodies_stay_exact_during_a_run(lookahead):
     """After steps with rigidification, release and changing external forces
     (budget mode, short dwell), the hybrid evaluation at the current state still
     equals the locked-joint solution: the cached group data and force sums are
-    right. Checked on copies of the simulator every 10 steps.
-
-    With ``lookahead=True`` this fails (relative error 0.1 from step 3 on) because
-    of the grounded-front bug described in :func:`test_grounded_front_after_lookahead`;
-    with ``lookahead=False`` the error is 1e-14."""
+    right. Checked on copies of the simulator every 10 steps, with and without
+    the look-ahead (which once broke it from step 3 on: the grounded-front bug of
+    :func:`test_grounded_front_after_lookahead`)."""
     seed = 3
     model = random_tree(seed, n=30, roots=2, composite=True, springs=False)
     q, qd, tau, _ = random_state(model, seed)

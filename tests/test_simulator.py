@@ -1,13 +1,18 @@
 """Integrators and the Simulator (theory §8, checks 5 and 6)."""
 
+import copy
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from numba.core.registry import CPUDispatcher
 from strategies import random_chain, random_configuration, with_armature
 
 import vdad
+import vdad.dca
+import vdad.kinematics
+import vdad.region
 from vdad.integrators import integrate_configuration
 from vdad.quantities import spatial_momentum, total_energy
 from vdad.scenes import pendulum
@@ -338,3 +343,25 @@ def test_step_loop_loaded_from_the_cache_in_a_fresh_process():
         assert done.returncode == 0, done.stderr
     q = np.array(done.stdout.strip().strip("[]").split(), float)
     np.testing.assert_array_equal(q, expected)
+
+
+
+@pytest.mark.parametrize("options", [{}, {"method": "adaptive", "budget": 3}])
+def test_a_copied_simulator_runs_the_same_compiled_kernels(options):
+    """copy.deepcopy of a simulator shares its immutable model and tree (the same
+    objects, read-only arrays and all), so the copy steps with the kernels already
+    compiled for the original instead of compiling a second version of each (two
+    minutes for the adaptive passes) and gives the same state."""
+    scene = pendulum(8)
+    sim = vdad.Simulator(scene.model, scene.q0, **options)
+    sim.step(2)
+    kernels = [k for m in (vdad.dca, vdad.kinematics, vdad.region)
+               for k in vars(m).values() if isinstance(k, CPUDispatcher)]
+    compiled = {k: len(k.signatures) for k in kernels}
+    twin = copy.deepcopy(sim)
+    assert twin.model is sim.model and copy.copy(sim.model) is sim.model
+    assert not twin.model.mass.flags.writeable
+    twin.step(3)
+    sim.step(3)
+    np.testing.assert_array_equal(twin.q, sim.q)
+    assert {k: len(k.signatures) for k in kernels} == compiled

@@ -29,7 +29,7 @@ import numpy as np
 
 from .checks import check_count, show
 from .errors import InputError
-from .model import check_model
+from .model import Immutable, check_model
 
 GROUND = -1
 
@@ -109,7 +109,7 @@ def depth_first(nb, left, right):
     return out
 
 
-class AssemblyTree:
+class AssemblyTree(Immutable):
     """An immutable binary assembly tree of ``model``.
 
     Build with :meth:`balanced`, :meth:`sequential` or from any joint order

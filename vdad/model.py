@@ -336,7 +336,21 @@ def _topological_order(parent_index: list[int | None], names: list[str]) -> list
     return order
 
 
-class Model:
+class Immutable:
+    """An object that never changes after construction: :func:`copy.copy` and
+    :func:`copy.deepcopy` return it. A copy would be useless, and it would also
+    lose the read-only flags of its arrays, a different array type for numba:
+    every kernel it reaches would compile again (two minutes for the adaptive
+    passes)."""
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+class Model(Immutable):
     """An immutable, validated forest of rigid bodies and joints.
 
     Parameters: ``bodies`` (sequence of :class:`Body`), ``joints`` (sequence of
