@@ -143,22 +143,29 @@ def tolerance(model, q, c=100.0):
     return c * np.linalg.cond(crba(model, q)) * np.finfo(float).eps
 
 
-def small_compiled_run(steps=True):
-    """Forward dynamics and (``steps``) three compiled RK4 steps with built-in
-    forces (drag, random torques, a spring) of a small seeded tree with armature:
-    what tests/test_linalg.py compares between processes and modes."""
+def small_compiled_run(upto="steps"):
+    """The compiled kinematics (body positions and velocities), then (``upto``
+    ``"dynamics"`` or ``"steps"``) forward dynamics, then (``"steps"``) three
+    compiled RK4 steps with built-in forces (drag, random torques, a spring) of a
+    small seeded tree with armature: what tests/test_linalg.py compares between
+    processes and modes."""
     from vdad.forces import Drag, Forces, RandomTorques, Springs
+    from vdad.kinematics import kinematics
 
     model = with_armature(random_tree(5, n=6, roots=2, composite=True), 5)
     rng = np.random.default_rng(5)
     q = random_configuration(model, rng)
     qd, tau = rng.normal(size=model.nv), rng.normal(size=model.nv)
     f = rng.normal(size=(model.nb, 6))
-    qdd = vdad.forward_dynamics(model, q, qd, tau, f)
-    if not steps:
-        return dict(qdd=qdd.tolist())
+    kin = kinematics(model, q, qd)
+    out = dict(p=kin.p.ravel().tolist(), v=kin.v.ravel().tolist())
+    if upto == "kinematics":
+        return out
+    out["qdd"] = vdad.forward_dynamics(model, q, qd, tau, f).tolist()
+    if upto == "dynamics":
+        return out
     forces = Forces(model, [Drag(model, 0.5), RandomTorques(model, [1, 2], 0.3, rate=50.0),
                             Springs(model, [0], [[0.1, 0, 0]], [[0, 0, 1.0]], 20.0, 1.0)])
     sim = vdad.Simulator(model, q, qd, dt=1e-3, integrator="rk4", external=forces.external)
     sim.step(3)
-    return dict(qdd=qdd.tolist(), q=sim.q.tolist(), qd=sim.qd.tolist())
+    return dict(out, q=sim.q.tolist(), qd=sim.qd.tolist())

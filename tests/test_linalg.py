@@ -108,7 +108,7 @@ from numba.core.registry import CPUDispatcher
 sys.path.insert(0, {tests!r})
 from strategies import small_compiled_run
 import vdad
-out = small_compiled_run({steps})
+out = small_compiled_run({upto!r})
 kernels = [k for name, module in list(sys.modules.items()) if name.startswith("vdad")
            for k in vars(module).values() if isinstance(k, CPUDispatcher)]
 print(json.dumps(dict(out, where=vdad.__file__,
@@ -128,9 +128,9 @@ def test_plain_python_mode_gives_the_compiled_result():
     """NUMBA_DISABLE_JIT=1 runs the kernels as plain Python (a debugger can step
     through a pass): the same accelerations as the compiled core, and the same
     compiled steps (RK4, built-in forces: drag, random torques, a spring)."""
-    done = _run(SMALL.format(tests=str(ROOT / "tests"), steps=True), {"NUMBA_DISABLE_JIT": "1"})
+    done = _run(SMALL.format(tests=str(ROOT / "tests"), upto="steps"), {"NUMBA_DISABLE_JIT": "1"})
     out, expected = json.loads(done.stdout), small_compiled_run()
-    for name in ("qdd", "q", "qd"):              # forward dynamics; compiled steps, forces
+    for name in ("p", "v", "qdd", "q", "qd"):    # kinematics, dynamics; steps, forces
         e = np.array(expected[name])
         np.testing.assert_allclose(np.array(out[name]), e, rtol=0,
                                    atol=1e-12 * max(1.0, np.abs(e).max()))
@@ -152,7 +152,7 @@ def test_read_only_install_compiles_once_then_loads_from_the_user_cache(tmp_path
         p.chmod(0o555 if p.is_dir() else 0o444)
     cache = tmp_path / "cache"
     env = {"PYTHONPATH": str(site), "XDG_CACHE_HOME": str(cache), "NUMBA_CACHE_DIR": ""}
-    code = SMALL.format(tests=str(ROOT / "tests"), steps=False)
+    code = SMALL.format(tests=str(ROOT / "tests"), upto="kinematics")
     try:
         first = _run(code, env, cwd=tmp_path)
         second = _run(code, env, cwd=tmp_path)
@@ -162,11 +162,13 @@ def test_read_only_install_compiles_once_then_loads_from_the_user_cache(tmp_path
     assert first.stderr.count(L.NOTICE) == 1, first.stderr
     assert L.NOTICE not in second.stderr
     assert any(cache.rglob("*.nbi")), "numba wrote no cache index in the user cache"
-    expected = np.array(small_compiled_run(steps=False)["qdd"])
+    expected = small_compiled_run("kinematics")
     out = [json.loads(done.stdout) for done in (first, second)]
     for o in out:
-        np.testing.assert_allclose(np.array(o["qdd"]), expected, rtol=0,
-                                   atol=1e-12 * np.abs(expected).max())
+        for name in ("p", "v"):
+            e = np.array(expected[name])
+            np.testing.assert_allclose(np.array(o[name]), e, rtol=0,
+                                       atol=1e-12 * np.abs(e).max())
     assert all(o["where"].startswith(str(site)) for o in out)
     assert out[0]["compiled"] > 0 and out[0]["loaded"] == 0, out[0]
     assert out[1]["compiled"] == 0 and out[1]["loaded"] > 0, out[1]
