@@ -110,12 +110,13 @@ def test_bad_force_stops_with_the_step():
     assert sim.step_count == 5
 
 
-def test_blow_up_names_the_step_and_joint():
+@pytest.mark.parametrize("options", [{}, {"method": "adaptive", "threshold": 0.0}])
+def test_blow_up_names_the_step_and_joint(options):
     """An unstable explicit step on a stiff spring diverges; the error says where."""
     model = vdad.Model([vdad.Body("mass", 1.0)],
                        [vdad.Joint("spring", None, "mass", "prismatic", axis=(1, 0, 0),
                                    stiffness=1e12)], gravity=(0, 0, 0))
-    sim = vdad.Simulator(model, [1.0], dt=1e-2, integrator="rk4")
+    sim = vdad.Simulator(model, [1.0], dt=1e-2, integrator="rk4", **options)
     with np.errstate(over="ignore", invalid="ignore"):
         with pytest.raises(vdad.SimulationError, match=r"step \d+ .*joint 'spring'"):
             sim.step(1000)
@@ -223,13 +224,15 @@ def test_seeded_runs_repeat_exactly():
     assert not np.allclose(a.q[1::2], 0.0)                  # the alternate chain swings in 3D
 
 
-def test_diverging_run_stops_with_the_joint():
-    """More than half a turn per step on a rotational dof: a SimulationError."""
+@pytest.mark.parametrize("options", [{}, {"method": "adaptive", "threshold": 0.0}])
+def test_diverging_run_stops_with_the_joint(options):
+    """More than half a turn per step on a rotational dof: a SimulationError (with
+    adaptive dynamics, from the compiled check of the active joints first)."""
     from vdad.errors import SimulationError
 
     scene = pendulum(n_bodies=3)
     qd0 = np.array([0.0, 4000.0, 0.0])
-    sim = vdad.Simulator(scene.model, scene.q0, qd0, dt=1e-3)
+    sim = vdad.Simulator(scene.model, scene.q0, qd0, dt=1e-3, **options)
     with pytest.raises(SimulationError, match="step 1 .*joint 'joint1' turns 4 rad in one "
                                               "step .*diverging; reduce the time step"):
         sim.step()

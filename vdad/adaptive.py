@@ -65,6 +65,7 @@ from .region import (
     RIGIDIFIED,
     SOLVED,
     RegionData,
+    active_state_ok,
     change_region,
     euler_active,
     evaluate,
@@ -326,6 +327,14 @@ class AdaptiveDynamics:
         if not len(j):
             return np.zeros(0, int)
         return np.concatenate([np.arange(m.v_start[k], m.v_start[k] + m.nv_joint[k]) for k in j])
+
+    def state_ok(self, q, qd, rotational):
+        """Whether a step left the active joints' ``q``, ``qd`` finite and turned no
+        ``rotational`` (nv,) dof by more than half a turn (``region.active_state_ok``:
+        the simulator's checks, on the joints a step changes)."""
+        with compiling(active_state_ok):
+            return active_state_ok(self.dt, plan(self.model).arrays, body_arrays(self.model),
+                                   self.region.arrays, rotational, q, qd)
 
     def _args(self):
         return (plan(self.model).arrays, self.tree.arrays, body_arrays(self.model),

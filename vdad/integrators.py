@@ -70,6 +70,12 @@ def normalize_quaternions(stage_kind, stage_q, q):
 
 
 @inlined
+def stage_nq(kind):
+    """Configuration coordinates of a stage of ``kind`` (:data:`vdad.joints.STAGE_NQ`)."""
+    return 4 if kind == 2 else (3 if kind == 3 else 1)
+
+
+@inlined
 def normalize_stage(s, stage_kind, stage_q, q):
     """The quaternion of stage ``s`` divided by its norm, in place, if it is a ball."""
     if stage_kind[s] == 2:

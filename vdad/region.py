@@ -58,7 +58,7 @@ from .dca import (
 )
 from .heaps import heap_pop, heap_push, sort_ascending
 from .hybrid import freeze_node
-from .integrators import normalize_stage, stage_rate, stage_step
+from .integrators import normalize_stage, stage_nq, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
 
 #: indices of :attr:`RegionData.counts`
@@ -969,7 +969,7 @@ def rk4_active(k, dt, js, bodies, region, q, qd, qdd, kq, kv, qs, vs):
                 qd[i] += dt / 6 * (kv[0, i] + 2 * kv[1, i] + 2 * kv[2, i] + kv[3, i])
         for s in range(stage0[j], stage0[j] + n_stages[j]):
             kind, iq = stage_kind[s], stage_q[s]
-            for i in range(iq, iq + (4 if kind == 2 else (3 if kind == 3 else 1))):
+            for i in range(iq, iq + stage_nq(kind)):
                 if k < 4:
                     qs[i] = q[i] + h * kq[k - 1, i] if k > 0 else q[i]
                 else:
@@ -978,6 +978,28 @@ def rk4_active(k, dt, js, bodies, region, q, qd, qdd, kq, kv, qs, vs):
                 stage_rate(s, stage_kind, stage_q, stage_v, qs, vs, kq[k])
             else:
                 normalize_stage(s, stage_kind, stage_q, q)
+
+
+@pass_kernel
+def active_state_ok(dt, js, bodies, region, rotational, q, qd):
+    """The simulator's step checks on the active joints (the only ones a step
+    changes: a rigid joint keeps its ``q`` and ``qd = 0``): whether their ``q`` and
+    ``qd`` are finite and no rotational dof (``rotational`` (nv,)) turns by more
+    than half a turn in ``dt``. O(active joints) instead of O(n)."""
+    stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
+    stage_kind, stage_q = bodies[5], bodies[6]
+    joints, counts = region[6], region[10]
+    for x in range(counts[N_JOINTS]):
+        j = joints[x]
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            if not np.isfinite(qd[k]) or (rotational[k] and abs(qd[k]) * dt > np.pi):
+                return False
+        for s in range(stage0[j], stage0[j] + n_stages[j]):
+            kind, iq = stage_kind[s], stage_q[s]
+            for i in range(iq, iq + stage_nq(kind)):
+                if not np.isfinite(q[i]):
+                    return False
+    return True
 
 
 @pass_kernel
