@@ -7,7 +7,7 @@ from raycast import box_pixels, sphere_pixels
 from strategies import random_rotation
 
 from vdad.camera import Camera
-from vdad.projection import box_areas, clip_polygons, polygon_areas, sphere_areas
+from vdad.projection import box_areas, clip_polygon, polygon_area, sphere_areas
 
 CAM = Camera(width=320, height=240)          # f = 207.8 px; half-width 2.31 m at 3 m
 # (name, centre in camera coordinates, radius): the cases of theory §7
@@ -95,9 +95,18 @@ def test_batches_equal_single_items():
     np.testing.assert_allclose(box_areas(CAM, c, R, h), single, rtol=1e-12)
 
 
-def test_clip_polygons():
-    square = np.array([[[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]])
-    assert polygon_areas(clip_polygons(square, (1.0, 0.0), 0.5))[0] == pytest.approx(3.0)
-    assert polygon_areas(clip_polygons(square, (1.0, 1.0), 3.0))[0] == pytest.approx(0.5)
-    assert polygon_areas(clip_polygons(square, (1.0, 0.0), 5.0))[0] == 0.0
-    assert polygon_areas(clip_polygons(square, (1.0, 0.0), -1.0))[0] == pytest.approx(4.0)
+def test_clip_polygon():
+    """One Sutherland-Hodgman stage of a square: half-planes through it, past it and
+    around it, and a 3D polygon clipped by the near plane."""
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    out = np.empty((8, 2))
+    for normal, offset, area in (((1.0, 0.0), 0.5, 3.0), ((1.0, 1.0), 3.0, 0.5),
+                                 ((1.0, 0.0), 5.0, 0.0), ((1.0, 0.0), -1.0, 4.0)):
+        m = clip_polygon(square, 4, *normal, 0.0, offset, out)
+        assert polygon_area(out, m) == pytest.approx(area)
+    assert clip_polygon(square, 4, 1.0, 0.0, 0.0, 5.0, out) == 0
+    quad = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, -1.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    out3 = np.empty((8, 3))
+    m = clip_polygon(quad, 4, 0.0, 0.0, -1.0, 0.5, out3)          # keep -z >= 0.5
+    assert m == 4 and np.all(-out3[:m, 2] >= 0.5 - 1e-15)
+    assert polygon_area(out3, m) == pytest.approx(0.5)            # its (x, y) shadow

@@ -20,204 +20,330 @@ culling (``docs/visibility.md`` derives the cases):
 
 The far plane is not applied: cameras should see the whole scene within it.
 Image coordinates are those of :mod:`vdad.camera` (origin bottom-left, y up).
+
+Compiled, one volume per kernel call (:func:`sphere_area`, :func:`box_area`),
+with the camera as the tuple ``view = (f, width, height, znear)``
+(:func:`view_of`); :func:`sphere_areas` and :func:`box_areas` are the batch
+forms for numpy callers.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-_RIM_SAMPLES = 720                 # points per circle on the slow path of spheres
+from ._linalg import as_input, inlined, kernel, pass_kernel
+
+RIM_SAMPLES = 720                  # points per circle on the slow path of spheres
+MAX_VERTICES = 16                  # a box face clipped by the near plane and viewport: <= 9
+
+#: corner ``i`` of a box: the sign of its x half-extent from bit 0, y bit 1, z bit 2
+CORNERS = np.array([[2.0 * ((i >> a) & 1) - 1.0 for a in range(3)] for i in range(8)])
+#: the corners of faces -x, +x, -y, +y, -z, +z, in order around each face
+FACES = np.array([[0, 2, 6, 4], [1, 5, 7, 3], [0, 4, 5, 1], [2, 3, 7, 6], [0, 1, 3, 2],
+                  [4, 6, 7, 5]])
 
 
-def clip_polygons(P, normal, offset):
-    """Clip convex polygons ``P`` (k, n, D) (vertices in order, repeats allowed) to
-    the half-space ``x . normal >= offset`` (Sutherland-Hodgman, all at once).
-    Returns (k, n + 1, D); an empty result has all vertices equal (area 0)."""
-    k, n, D = P.shape
-    s = P @ np.asarray(normal, float) - offset                         # (k, n)
-    nxt = np.roll(np.arange(n), -1)
-    inside = s >= 0
-    cross = inside != inside[:, nxt]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(cross, s / (s - s[:, nxt]), 0.0)
-    X = P + t[..., None] * (P[:, nxt] - P)                             # (k, n, D)
-    out = np.stack([P, X], axis=2).reshape(k, 2 * n, D)
-    keep = np.stack([inside, cross], axis=2).reshape(k, 2 * n)
-    order = np.argsort(~keep, axis=1, kind="stable")[:, :n + 1]
-    out = np.take_along_axis(out, order[..., None], axis=1)
-    count = keep.sum(axis=1)
-    pad = np.arange(n + 1)[None, :] >= count[:, None]
-    return np.where(pad[..., None], out[:, :1], out)
+def view_of(camera):
+    """The camera's intrinsics as the kernels take them: (focal in pixels, width,
+    height, znear)."""
+    return (float(camera.focal), float(camera.width), float(camera.height),
+            float(camera.znear))
 
 
-def polygon_areas(P):
-    """Areas (k,) of polygons ``P`` (k, n, 2) by the shoelace formula (unsigned)."""
-    Q = np.concatenate([P[:, 1:], P[:, :1]], axis=1)                    # next vertices
-    return 0.5 * np.abs(np.sum(P[..., 0] * Q[..., 1] - Q[..., 0] * P[..., 1], axis=1))
+# --- polygons ------------------------------------------------------------------------------
+
+@inlined
+def clip_polygon(P, m, nx, ny, nz, offset, out):
+    """Clip the polygon ``P[:m]`` (vertices in order; 2 or 3 columns, ``nz``
+    ignored for 2) to the half-space ``x . n >= offset`` (one Sutherland-Hodgman
+    stage) into ``out``; returns its vertex count (0: nothing left)."""
+    dim = P.shape[1]
+    k = 0
+    for i in range(m):
+        j = i + 1 if i + 1 < m else 0
+        si = P[i, 0] * nx + P[i, 1] * ny + (P[i, 2] * nz if dim == 3 else 0.0) - offset
+        sj = P[j, 0] * nx + P[j, 1] * ny + (P[j, 2] * nz if dim == 3 else 0.0) - offset
+        if si >= 0:
+            for c in range(dim):
+                out[k, c] = P[i, c]
+            k += 1
+        if (si >= 0) != (sj >= 0):
+            t = si / (si - sj)
+            for c in range(dim):
+                out[k, c] = P[i, c] + t * (P[j, c] - P[i, c])
+            k += 1
+    return k
 
 
-def clip_to_viewport(P, width, height):
-    """Polygons ``P`` (k, n, 2) in pixels clipped to ``[0, width] x [0, height]``."""
-    for normal, offset in (((1, 0), 0.0), ((-1, 0), -width), ((0, 1), 0.0), ((0, -1), -height)):
-        P = clip_polygons(P, normal, offset)
-    return P
+@inlined
+def polygon_area(P, m):
+    """Unsigned area of the polygon ``P[:m]`` (m, 2) (shoelace formula)."""
+    a = 0.0
+    for i in range(m):
+        j = i + 1 if i + 1 < m else 0
+        a += P[i, 0] * P[j, 1] - P[j, 0] * P[i, 1]
+    return 0.5 * abs(a)
 
 
-def _project(camera, X):
-    """Pixels (..., 2) of camera-frame points ``X`` (..., 3) in front of the camera."""
-    return camera.focal * X[..., :2] / -X[..., 2:3] + 0.5 * np.array([camera.width,
-                                                                      camera.height])
+@inlined
+def viewport_area(view, P, m, Q):
+    """Area of the polygon ``P[:m]`` (pixels) inside ``[0, width] x [0, height]``;
+    ``P`` and ``Q`` (same shape) are scratch, overwritten."""
+    m = clip_polygon(P, m, 1.0, 0.0, 0.0, 0.0, Q)
+    m = clip_polygon(Q, m, -1.0, 0.0, 0.0, -view[1], P)
+    m = clip_polygon(P, m, 0.0, 1.0, 0.0, 0.0, Q)
+    m = clip_polygon(Q, m, 0.0, -1.0, 0.0, -view[2], P)
+    return polygon_area(P, m)
 
 
-_FACES = np.array([[0, 2, 6, 4], [1, 5, 7, 3],      # -x, +x   (corner i: signs of its bits)
-                   [0, 4, 5, 1], [2, 3, 7, 6],      # -y, +y
-                   [0, 1, 3, 2], [4, 6, 7, 5]])     # -z, +z
-_CORNERS = np.array([[(i >> 2) & 1, (i >> 1) & 1, i & 1] for i in range(8)]) * 2.0 - 1.0
-_CORNERS = _CORNERS[:, ::-1]                         # corner i: x from bit 0, y bit 1, z bit 2
+@inlined
+def project(view, x, y, z):
+    """Pixel (u, v) of the camera-frame point (x, y, z) in front of the camera."""
+    return view[0] * x / -z + 0.5 * view[1], view[0] * y / -z + 0.5 * view[2]
+
+
+# --- spheres -------------------------------------------------------------------------------
+
+@inlined
+def sector(ux, uy, vx, vy):
+    """Signed area of the unit disk's sector from direction u to v."""
+    return 0.5 * np.arctan2(ux * vy - uy * vx, ux * vx + uy * vy)
+
+
+@inlined
+def segment_disk_area(ax, ay, bx, by):
+    """Signed area of the unit disk intersected with the triangle (0, a, b):
+    sectors outside the disk, the triangle inside."""
+    ex, ey = bx - ax, by - ay
+    A = ex * ex + ey * ey
+    B = ax * ex + ay * ey
+    C = ax * ax + ay * ay - 1.0
+    disc = B * B - A * C
+    t1 = t2 = 1.0
+    if A > 0 and disc > 0:
+        root = np.sqrt(disc)
+        t1 = min(max((-B - root) / A, 0.0), 1.0)
+        t2 = min(max((-B + root) / A, 0.0), 1.0)
+    p1x, p1y, p2x, p2y = ax + t1 * ex, ay + t1 * ey, ax + t2 * ex, ay + t2 * ey
+    return (sector(ax, ay, p1x, p1y) + 0.5 * (p1x * p2y - p1y * p2x)
+            + sector(p2x, p2y, bx, by))
+
+
+@inlined
+def ellipse_area(view, x, y, d, r):
+    """Area of the silhouette ellipse of a sphere wholly in front of the near
+    plane (centre (x, y, -d) in the camera frame, radius r), clipped to the
+    viewport: the cone ``(P.C)^2 >= s |P|^2`` on the image plane is the ellipse
+    ``(w - w0)^T E (w - w0) <= 1``; with ``E = L L^T`` the map ``L^T (w - w0)``
+    takes it to the unit disk and the viewport to a parallelogram."""
+    f, W, H = view[0], view[1], view[2]
+    s = x * x + y * y + d * d - r * r                                   # l^2 - r^2
+    a, b, c = x * x - s, x * y, y * y - s                               # Q2
+    qx, qy = x * d, y * d
+    det = a * c - b * b
+    w0x, w0y = -(c * qx - b * qy) / det, -(a * qy - b * qx) / det      # ellipse centre
+    k = -1.0 / ((d * d - s + qx * w0x + qy * w0y) * f * f)             # E = k Q2, pixels
+    E00, E01, E11 = k * a, k * b, k * c
+    L00 = np.sqrt(E00)
+    L10 = E01 / L00
+    L11 = np.sqrt(E11 - L10 * L10)
+    p0x, p0y = 0.5 * W + f * w0x, 0.5 * H + f * w0y
+    detE = E00 * E11 - E01 * E01
+    rx, ry = np.sqrt(E11 / detE), np.sqrt(E00 / detE)                 # half bounding box
+    if p0x + rx <= 0 or p0y + ry <= 0 or p0x - rx >= W or p0y - ry >= H:
+        return 0.0
+    unit = np.pi
+    if p0x - rx < 0 or p0y - ry < 0 or p0x + rx > W or p0y + ry > H:   # exact disk-polygon
+        unit = 0.0
+        for e in range(4):                  # viewport corners (0,0), (W,0), (W,H), (0,H)
+            ux = (W if e == 1 or e == 2 else 0.0) - p0x
+            uy = (H if e >= 2 else 0.0) - p0y
+            vx = (W if e == 0 or e == 1 else 0.0) - p0x
+            vy = (H if e == 1 or e == 2 else 0.0) - p0y
+            unit += segment_disk_area(L00 * ux + L10 * uy, L11 * uy, L00 * vx + L10 * vy,
+                                      L11 * vy)
+        unit = abs(unit)
+    return unit / (L00 * L11)
+
+
+@kernel
+def cut_sphere_area(view, x, y, z, r):
+    """Area of a sphere cut by the near plane or around the camera (the slow
+    path): the convex hull of its rim on the near plane and of its silhouette
+    circle beyond it, projected and clipped to the viewport."""
+    n, d = view[3], -z
+    P = np.empty((2 * RIM_SAMPLES, 2))
+    m = 0
+    rim2 = r * r - (d - n) ** 2
+    if rim2 > 0:                                                        # rim on the near plane
+        rho = np.sqrt(rim2)
+        for i in range(RIM_SAMPLES):
+            t = 2 * np.pi * i / RIM_SAMPLES
+            P[m, 0], P[m, 1] = project(view, x + rho * np.cos(t), y + rho * np.sin(t), -n)
+            m += 1
+    l2 = x * x + y * y + z * z
+    if l2 > r * r:                                                      # silhouette circle
+        ln = np.sqrt(l2)
+        ux, uy, uz = x / ln, y / ln, z / ln
+        if abs(ux) < 0.9:                                               # u x (1, 0, 0)
+            e1x, e1y, e1z = 0.0, uz, -uy
+        else:                                                           # u x (0, 1, 0)
+            e1x, e1y, e1z = -uz, 0.0, ux
+        e1n = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        e1x, e1y, e1z = e1x / e1n, e1y / e1n, e1z / e1n
+        e2x, e2y, e2z = uy * e1z - uz * e1y, uz * e1x - ux * e1z, ux * e1y - uy * e1x
+        rho = r * np.sqrt(l2 - r * r) / ln
+        g = 1 - r * r / l2
+        for i in range(RIM_SAMPLES):
+            t = 2 * np.pi * i / RIM_SAMPLES
+            ct, st = np.cos(t), np.sin(t)
+            pz = g * z + rho * (ct * e1z + st * e2z)
+            if -pz >= n:
+                P[m, 0], P[m, 1] = project(view, g * x + rho * (ct * e1x + st * e2x),
+                                           g * y + rho * (ct * e1y + st * e2y), pz)
+                m += 1
+    if m < 3:
+        return 0.0
+    hull = np.empty((m + 5, 2))
+    k = convex_hull(P, m, hull)
+    return viewport_area(view, hull, k, np.empty((m + 5, 2)))
+
+
+@inlined
+def turns_left(H, k, px, py):
+    """Whether the chain ``H[:k]`` turns left (counter-clockwise) at (px, py)."""
+    return ((H[k - 1, 0] - H[k - 2, 0]) * (py - H[k - 2, 1])
+            - (H[k - 1, 1] - H[k - 2, 1]) * (px - H[k - 2, 0])) > 0
+
+
+@inlined
+def convex_hull(P, m, H):
+    """The convex hull of the points ``P[:m]`` (m, 2) into ``H`` (counter-clockwise,
+    Andrew's monotone chain); returns its vertex count."""
+    order = np.argsort(P[:m, 1], kind="mergesort")                     # by x, then y
+    order = order[np.argsort(P[order, 0], kind="mergesort")]
+    k = 0
+    for i in range(m):                                                  # lower chain
+        px, py = P[order[i], 0], P[order[i], 1]
+        while k >= 2 and not turns_left(H, k, px, py):
+            k -= 1
+        H[k, 0], H[k, 1] = px, py
+        k += 1
+    lower = k + 1
+    for i in range(m - 2, -1, -1):                                      # upper chain
+        px, py = P[order[i], 0], P[order[i], 1]
+        while k >= lower and not turns_left(H, k, px, py):
+            k -= 1
+        H[k, 0], H[k, 1] = px, py
+        k += 1
+    return k - 1                                                        # the first, again
+
+
+@inlined
+def sphere_area(view, x, y, z, r):
+    """Projected area in pixels of the sphere of camera-frame centre (x, y, z) and
+    radius ``r`` (negative: empty, area 0)."""
+    d = -z
+    if r <= 0 or d + r <= view[3]:
+        return 0.0
+    if d - r >= view[3]:
+        return ellipse_area(view, x, y, d, r)
+    return cut_sphere_area(view, x, y, z, r)
+
+
+# --- boxes ---------------------------------------------------------------------------------
+
+@inlined
+def box_area(view, c, R, h, corners, xy, P, Q):
+    """Projected area in pixels of the box of camera-frame centre ``c`` (3,), axes
+    ``R`` (3, 3) (columns) and half-extents ``h`` (3,) (any negative: empty, 0):
+    the sum over its back faces, clipped by the near plane and the viewport.
+    ``corners`` (8, 3), ``xy`` (8, 2), ``P``, ``Q`` (:data:`MAX_VERTICES`, 3):
+    scratch."""
+    if h[0] < 0 or h[1] < 0 or h[2] < 0:
+        return 0.0
+    n = view[3]
+    front = behind = True
+    for i in range(8):
+        for a in range(3):
+            corners[i, a] = c[a]
+            for b in range(3):
+                corners[i, a] += CORNERS[i, b] * h[b] * R[a, b]
+        depth = -corners[i, 2]
+        front = front and depth >= n
+        behind = behind and depth < n
+    if behind:
+        return 0.0
+    inside = front
+    if front:
+        lo_u = lo_v = np.inf
+        hi_u = hi_v = -np.inf
+        for i in range(8):
+            xy[i, 0], xy[i, 1] = project(view, corners[i, 0], corners[i, 1], corners[i, 2])
+            lo_u, hi_u = min(lo_u, xy[i, 0]), max(hi_u, xy[i, 0])
+            lo_v, hi_v = min(lo_v, xy[i, 1]), max(hi_v, xy[i, 1])
+        if hi_u <= 0 or hi_v <= 0 or lo_u >= view[1] or lo_v >= view[2]:
+            return 0.0
+        inside = lo_u >= 0 and lo_v >= 0 and hi_u <= view[1] and hi_v <= view[2]
+    area = 0.0
+    for f in range(6):
+        a, sign = f // 2, 2.0 * (f % 2) - 1.0
+        # back face: its centre c + sign h_a R[:, a] seen along its normal sign R[:, a]
+        if sign * (c[0] * R[0, a] + c[1] * R[1, a] + c[2] * R[2, a]) + h[a] <= 0:
+            continue
+        if inside:                                   # no clipping: the projected quad
+            for v in range(4):
+                P[v, 0], P[v, 1] = xy[FACES[f, v], 0], xy[FACES[f, v], 1]
+            area += polygon_area(P, 4)
+            continue
+        for v in range(4):
+            for b in range(3):
+                P[v, b] = corners[FACES[f, v], b]
+        m = clip_polygon(P, 4, 0.0, 0.0, -1.0, n, Q)  # the near plane: -z >= znear
+        for v in range(m):
+            Q[v, 0], Q[v, 1] = project(view, Q[v, 0], Q[v, 1], min(Q[v, 2], -n))
+        area += viewport_area(view, Q[:, :2], m, P[:, :2])
+    return area
+
+
+# --- batches -------------------------------------------------------------------------------
+
+@pass_kernel
+def sphere_areas_pass(view, C, r, out):
+    """:func:`sphere_area` of spheres ``C`` (k, 3) (camera frame), ``r`` (k,)."""
+    for i in range(r.shape[0]):
+        out[i] = sphere_area(view, C[i, 0], C[i, 1], C[i, 2], r[i])
+
+
+@pass_kernel
+def box_areas_pass(view, C, R, h, out, corners, xy, P, Q):
+    """:func:`box_area` of boxes ``C`` (k, 3), ``R`` (k, 3, 3), ``h`` (k, 3)."""
+    for i in range(C.shape[0]):
+        out[i] = box_area(view, C[i], R[i], h[i], corners, xy, P, Q)
+
+
+def box_scratch():
+    """Scratch arrays of :func:`box_area`: corners, their pixels, two polygons."""
+    return (np.empty((8, 3)), np.empty((8, 2)), np.empty((MAX_VERTICES, 3)),
+            np.empty((MAX_VERTICES, 3)))
+
+
+def sphere_areas(camera, center, radius):
+    """Projected areas (k,) in pixels of spheres with centres ``center`` (k, 3) in
+    *camera* coordinates and ``radius`` (k,) (negative: empty, area 0)."""
+    C = as_input(np.reshape(center, (-1, 3)))
+    r = as_input(np.reshape(radius, -1))
+    out = np.zeros(len(r))
+    sphere_areas_pass(view_of(camera), C, r, out)
+    return out
 
 
 def box_areas(camera, center, R, half):
     """Projected areas (k,) in pixels of boxes given in *camera* coordinates:
     centres ``center`` (k, 3), axes ``R`` (k, 3, 3) (columns), half-extents
     ``half`` (k, 3) (any negative: empty box, area 0)."""
-    k = len(center)
-    area = np.zeros(k)
-    if k == 0:
-        return area
-    local = _CORNERS * np.maximum(half, 0)[:, None]                       # (k, 8, 3)
-    corners = center[:, None] + local @ np.swapaxes(R, 1, 2)
-    axis = np.repeat(np.arange(3), 2)
-    normal = R[:, :, axis] * np.tile([-1.0, 1.0], 3)                    # (k, 3, 6)
-    face_c = center[:, None] + np.swapaxes(normal, 1, 2) * np.take(half, axis, axis=1)[..., None]
-    back = (np.einsum("kfi,kif->kf", face_c, normal) > 0) & np.all(half >= 0, axis=1)[:, None]
-    depth = -corners[..., 2]
-    front = np.all(depth >= camera.znear, axis=1)
-    xy = _project(camera, np.where(front[:, None, None], corners, [0.0, 0.0, -1.0]))
-    lo, hi = np.min(xy, axis=1), np.max(xy, axis=1)
-    size = np.array([camera.width, camera.height])
-    inside = front & np.all(lo >= 0, axis=1) & np.all(hi <= size, axis=1)
-    away = front & (np.any(hi <= 0, axis=1) | np.any(lo >= size, axis=1))
-    behind = np.all(depth < camera.znear, axis=1)
-    # wholly inside the viewport: the back faces' projections, no clipping
-    fx = xy[inside][:, _FACES]                                          # (m, 6, 4, 2)
-    shoelace = polygon_areas(fx.reshape(-1, 4, 2)).reshape(-1, 6)
-    area[inside] = np.sum(shoelace * back[inside], axis=1)
-    # cut by the near plane or the viewport: clip each back face
-    kk, ff = np.nonzero(back & ~(inside | away | behind)[:, None])
-    if len(kk):
-        P = clip_polygons(corners[kk[:, None], _FACES[ff]], (0.0, 0.0, -1.0), camera.znear)
-        P[..., 2] = np.minimum(P[..., 2], -camera.znear)             # empty faces: area 0
-        clipped = clip_to_viewport(_project(camera, P), camera.width, camera.height)
-        area += np.bincount(kk, polygon_areas(clipped), minlength=k)
-    return area
-
-
-def _segment_disk_areas(a, b):
-    """Signed areas (...) of the unit disk intersected with triangles (0, a, b),
-    ``a``, ``b`` (..., 2): sectors outside the disk, triangles inside."""
-    e = b - a
-    A = np.einsum("...i,...i->...", e, e)
-    B = np.einsum("...i,...i->...", a, e)
-    C = np.einsum("...i,...i->...", a, a) - 1.0
-    disc = B * B - A * C
-    ok = (A > 0) & (disc > 0)
-    root = np.sqrt(np.where(ok, disc, 0.0))
-    A_safe = np.where(A > 0, A, 1.0)
-    t1 = np.where(ok, np.clip((-B - root) / A_safe, 0, 1), 1.0)
-    t2 = np.where(ok, np.clip((-B + root) / A_safe, 0, 1), 1.0)
-    P1, P2 = a + t1[..., None] * e, a + t2[..., None] * e
-
-    def cross(u, v):
-        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-
-    def sector(u, v):
-        return 0.5 * np.arctan2(cross(u, v), np.einsum("...i,...i->...", u, v))
-
-    return sector(a, P1) + 0.5 * cross(P1, P2) + sector(P2, b)
-
-
-def _ellipse_areas(camera, C, r):
-    """Areas of the silhouette ellipses of spheres wholly in front of the camera
-    (centres ``C`` (k, 3) camera frame, radii ``r`` (k,)), clipped to the viewport."""
-    f = camera.focal
-    x, y, d = C[:, 0], C[:, 1], -C[:, 2]
-    s = x * x + y * y + d * d - r * r                                   # l^2 - r^2
-    # cone (P.C)^2 >= s |P|^2 on the plane P = (u, v, 1): w^T Q2 w + 2 q.w + q0 >= 0
-    Q2 = np.empty((len(C), 2, 2))
-    Q2[:, 0, 0], Q2[:, 1, 1] = x * x - s, y * y - s
-    Q2[:, 0, 1] = Q2[:, 1, 0] = x * y
-    q = np.stack([x * d, y * d], axis=1)
-    w0 = -np.linalg.solve(Q2, q[..., None])[..., 0]                     # ellipse centre
-    kappa = d * d - s + np.einsum("ki,ki->k", q, w0)
-    E = -Q2 / (kappa * f * f)[:, None, None]                            # in pixels
-    L = np.linalg.cholesky(E)                                           # E = L L^T
-    p0 = 0.5 * np.array([camera.width, camera.height]) + f * w0
-    size = np.array([camera.width, camera.height])
-    reach = np.sqrt(np.diagonal(np.linalg.inv(E), axis1=1, axis2=2))  # half bounding box
-    unit = np.full(len(C), np.pi)                                       # disk area
-    cut = np.any(p0 - reach < 0, axis=1) | np.any(p0 + reach > size, axis=1)
-    unit[np.any(p0 + reach <= 0, axis=1) | np.any(p0 - reach >= size, axis=1)] = 0.0
-    cut &= unit > 0
-    if cut.any():                                      # exact disk-polygon intersection
-        W, H = size
-        rect = np.array([[0.0, 0.0], [W, 0.0], [W, H], [0.0, H]])
-        z = np.einsum("kji,kcj->kci", L[cut], rect[None] - p0[cut][:, None])  # L^T (x - p0)
-        unit[cut] = np.abs(_segment_disk_areas(z, np.roll(z, -1, axis=1)).sum(axis=1))
-    return unit / (L[:, 0, 0] * L[:, 1, 1])
-
-
-def _cut_sphere_area(camera, C, r):
-    """Area of one sphere cut by the near plane or around the camera (slow path)."""
-    n, d = camera.znear, -C[2]
-    theta = np.linspace(0, 2 * np.pi, _RIM_SAMPLES, endpoint=False)
-    ring = np.stack([np.cos(theta), np.sin(theta)], axis=1)
-    pts = []
-    rim2 = r * r - (d - n) ** 2
-    if rim2 > 0:                                                        # rim on the near plane
-        rim = np.sqrt(rim2) * ring
-        pts.append(np.column_stack([C[0] + rim[:, 0], C[1] + rim[:, 1], np.full(len(rim), -n)]))
-    l2 = C @ C
-    if l2 > r * r:                                                      # silhouette circle
-        u = C / np.sqrt(l2)
-        e1 = np.cross(u, [1.0, 0, 0] if abs(u[0]) < 0.9 else [0, 1.0, 0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(u, e1)
-        rho = r * np.sqrt(l2 - r * r) / np.sqrt(l2)
-        circle = C * (1 - r * r / l2) + rho * (ring[:, :1] * e1 + ring[:, 1:] * e2)
-        pts.append(circle[-circle[:, 2] >= n])
-    pts = np.concatenate(pts) if pts else np.zeros((0, 3))
-    if len(pts) < 3:
-        return 0.0
-    hull = _convex_hull(_project(camera, pts))
-    return float(polygon_areas(clip_to_viewport(hull[None], camera.width, camera.height))[0])
-
-
-def _convex_hull(P):
-    """Convex hull (m, 2) of points ``P`` (k, 2), counter-clockwise (monotone chain)."""
-    P = P[np.lexsort((P[:, 1], P[:, 0]))]
-
-    def chain(points):
-        out = []
-        for p in points:
-            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (p[1] - out[-2][1])
-                                     - (out[-1][1] - out[-2][1]) * (p[0] - out[-2][0])) <= 0:
-                out.pop()
-            out.append(p)
-        return out[:-1]
-
-    return np.array(chain(P) + chain(P[::-1]))
-
-
-def sphere_areas(camera, center, radius):
-    """Projected areas (k,) in pixels of spheres with centres ``center`` (k, 3) in
-    *camera* coordinates and ``radius`` (k,) (negative: empty, area 0)."""
-    center = np.asarray(center, float).reshape(-1, 3)
-    r = np.asarray(radius, float).reshape(-1)
-    d = -center[:, 2]
-    area = np.zeros(len(r))
-    front = (r > 0) & (d - r >= camera.znear)
-    if front.any():
-        area[front] = _ellipse_areas(camera, center[front], r[front])
-    for i in np.flatnonzero((r > 0) & ~front & (d + r > camera.znear)):
-        area[i] = _cut_sphere_area(camera, center[i], r[i])
-    return area
+    C = as_input(np.reshape(center, (-1, 3)))
+    out = np.zeros(len(C))
+    box_areas_pass(view_of(camera), C, as_input(np.reshape(R, (-1, 3, 3))),
+                   as_input(np.reshape(half, (-1, 3))), out, *box_scratch())
+    return out
