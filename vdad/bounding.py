@@ -28,8 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._linalg import as_input, inlined, pass_kernel
 from .errors import InputError, VdadError
-from .spatial import mv
+from .projection import box_area, box_scratch, sphere_area, view_of
 
 VOLUMES = ("sphere", "obb", "aabb")
 
@@ -148,56 +149,165 @@ def body_volumes(model, kind):
     return v
 
 
+#: kind codes of the kernels (their volumes are packed as ``c`` (3,), ``R`` (3, 3),
+#: ``h`` (3,); a sphere's radius is ``h[0]``, its ``R`` unused)
+KIND_CODE = {"sphere": 0, "obb": 1, "aabb": 2}
+SPHERE, OBB, AABB = 0, 1, 2
+
+
+def pack(v):
+    """The arrays ``(c, R, h)`` (k, 3), (k, 3, 3), (k, 3) of :class:`Volumes` ``v``."""
+    k = len(v)
+    if v.kind == "sphere":
+        return (as_input(v.c), np.broadcast_to(np.eye(3), (k, 3, 3)).copy(),
+                np.repeat(np.reshape(v.r, (k, 1)), 3, axis=1))
+    return as_input(v.c), as_input(v.R), as_input(v.h)
+
+
+def unpack(kind, c, R, h):
+    """:class:`Volumes` of packed arrays (the inverse of :func:`pack`)."""
+    if kind == "sphere":
+        return Volumes(kind, c, r=h[:, 0].copy())
+    return Volumes(kind, c, R=R, h=h)
+
+
+@inlined
+def place_volume(kind, c, R, h, Rw, pw, oc, oR, oh):
+    """A volume ``(c, R, h)`` given in a frame of world pose ``(Rw, pw)``, in world
+    coordinates, into ``(oc, oR, oh)`` (an AABB: the world box enclosing the placed
+    box; an empty volume stays empty)."""
+    for a in range(3):
+        oc[a] = pw[a] + Rw[a, 0] * c[0] + Rw[a, 1] * c[1] + Rw[a, 2] * c[2]
+        for b in range(3):
+            oR[a, b] = Rw[a, 0] * R[0, b] + Rw[a, 1] * R[1, b] + Rw[a, 2] * R[2, b]
+    if kind == AABB and h[0] >= 0:
+        for a in range(3):
+            oh[a] = abs(oR[a, 0]) * h[0] + abs(oR[a, 1]) * h[1] + abs(oR[a, 2]) * h[2]
+    else:
+        for a in range(3):
+            oh[a] = h[a]
+    if kind != OBB:
+        for a in range(3):
+            for b in range(3):
+                oR[a, b] = 1.0 if a == b else 0.0
+
+
+@inlined
+def copy_volume(c, R, h, oc, oR, oh):
+    for a in range(3):
+        oc[a], oh[a] = c[a], h[a]
+        for b in range(3):
+            oR[a, b] = R[a, b]
+
+
+@inlined
+def merge_volumes(kind, ca, Ra, ha, cb, Rb, hb, oc, oR, oh):
+    """The volume enclosing volumes ``a`` and ``b`` (one frame), in ``a``'s axes,
+    into ``(oc, oR, oh)`` (not aliasing either): the enclosing sphere of two
+    spheres; the box with ``a``'s axes that holds both boxes' corners (world
+    axes for AABBs). An empty volume and ``v`` give ``v``."""
+    if hb[0] < 0:
+        copy_volume(ca, Ra, ha, oc, oR, oh)
+        return
+    if ha[0] < 0:
+        copy_volume(cb, Rb, hb, oc, oR, oh)
+        return
+    if kind == SPHERE:
+        ra, rb = ha[0], hb[0]
+        d = np.sqrt((cb[0] - ca[0]) ** 2 + (cb[1] - ca[1]) ** 2 + (cb[2] - ca[2]) ** 2)
+        if ra >= d + rb:                                    # a holds b
+            copy_volume(ca, Ra, ha, oc, oR, oh)
+            return
+        if rb >= d + ra:
+            copy_volume(cb, Rb, hb, oc, oR, oh)
+            return
+        r = max(0.5 * (d + ra + rb), max(ra, rb))
+        t = (r - ra) / d if d > 0 else 0.0
+        for a in range(3):
+            oc[a] = ca[a] + t * (cb[a] - ca[a])
+            oh[a] = r
+            for b in range(3):
+                oR[a, b] = Ra[a, b]
+        return
+    for a in range(3):           # b's centre and reach along a's axis a: mid into oc, half oh
+        cba = ((cb[0] - ca[0]) * Ra[0, a] + (cb[1] - ca[1]) * Ra[1, a]
+               + (cb[2] - ca[2]) * Ra[2, a])
+        reach = 0.0
+        for e in range(3):
+            reach += abs(Ra[0, a] * Rb[0, e] + Ra[1, a] * Rb[1, e] + Ra[2, a] * Rb[2, e]) * hb[e]
+        lo, hi = min(-ha[a], cba - reach), max(ha[a], cba + reach)
+        oc[a], oh[a] = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    m0, m1, m2 = oc[0], oc[1], oc[2]
+    for a in range(3):
+        oc[a] = ca[a] + Ra[a, 0] * m0 + Ra[a, 1] * m1 + Ra[a, 2] * m2
+        for e in range(3):
+            oR[a, e] = Ra[a, e]
+
+
+@inlined
+def volume_area(kind, view, Rc, pc, c, R, h, cc, Rcam, scratch):
+    """Projected area in pixels of the world volume ``(c, R, h)`` under the camera
+    of world pose ``(Rc, pc)`` and intrinsics ``view`` (:mod:`vdad.projection`);
+    ``cc`` (3,), ``Rcam`` (3, 3) and ``scratch`` (:func:`projection.box_scratch`):
+    work arrays."""
+    for a in range(3):
+        cc[a] = Rc[0, a] * (c[0] - pc[0]) + Rc[1, a] * (c[1] - pc[1]) + Rc[2, a] * (c[2] - pc[2])
+    if kind == SPHERE:
+        return sphere_area(view, cc[0], cc[1], cc[2], h[0])
+    for a in range(3):
+        for b in range(3):
+            Rcam[a, b] = Rc[0, a] * R[0, b] + Rc[1, a] * R[1, b] + Rc[2, a] * R[2, b]
+    return box_area(view, cc, Rcam, h, scratch[0], scratch[1], scratch[2], scratch[3])
+
+
+@pass_kernel
+def place_pass(kind, c, R, h, Rw, pw, oc, oR, oh):
+    for i in range(c.shape[0]):
+        place_volume(kind, c[i], R[i], h[i], Rw[i], pw[i], oc[i], oR[i], oh[i])
+
+
+@pass_kernel
+def merge_pass(kind, ca, Ra, ha, cb, Rb, hb, oc, oR, oh):
+    for i in range(ca.shape[0]):
+        merge_volumes(kind, ca[i], Ra[i], ha[i], cb[i], Rb[i], hb[i], oc[i], oR[i], oh[i])
+
+
+@pass_kernel
+def areas_pass(kind, view, Rc, pc, c, R, h, out, cc, Rcam, scratch):
+    for i in range(c.shape[0]):
+        out[i] = volume_area(kind, view, Rc, pc, c[i], R[i], h[i], cc, Rcam, scratch)
+
+
+def _empty_like_packed(k):
+    return np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 3))
+
+
 def place(v, R, p):
     """Volumes ``v`` (k) given in frames with world poses ``R`` (k, 3, 3), ``p``
     (k, 3), in world coordinates (``"aabb"``: the world box enclosing the placed
     box)."""
-    c = p + mv(R, v.c)
-    if v.kind == "sphere":
-        return Volumes("sphere", c, r=v.r.copy())
-    if v.kind == "obb":
-        return Volumes("obb", c, R=R @ v.R, h=v.h.copy())
-    h = np.where(v.h[:, :1] < 0, v.h, mv(np.abs(R @ v.R), v.h))
-    return Volumes("aabb", c, R=np.broadcast_to(np.eye(3), R.shape).copy(), h=h)
+    out = _empty_like_packed(len(v))
+    place_pass(KIND_CODE[v.kind], *pack(v), as_input(R), as_input(p), *out)
+    return unpack(v.kind, *out)
 
 
 def merge(a, b):
     """Volumes (k) enclosing the pairs ``a`` (k), ``b`` (k), in ``a``'s frame (both
     given in one frame); the result of an empty volume and ``v`` is ``v``."""
-    if a.kind == "sphere":
-        d = np.linalg.norm(b.c - a.c, axis=1)
-        r = np.maximum(0.5 * (d + a.r + b.r), np.maximum(a.r, b.r))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(d > 0, (r - a.r) / d, 0.0)
-        c = a.c + t[:, None] * (b.c - a.c)
-        holds_b = a.r >= d + b.r                    # one sphere holds the other
-        holds_a = b.r >= d + a.r
-        c = np.where(holds_b[:, None], a.c, np.where(holds_a[:, None], b.c, c))
-        r = np.where(holds_b, a.r, np.where(holds_a, b.r, r))
-        out = Volumes("sphere", c, r=r)
-    else:
-        # both boxes' corners in a's axes (world axes for "aabb")
-        RT = np.swapaxes(a.R, 1, 2)
-        rel = RT @ b.R
-        cb = mv(RT, b.c - a.c)
-        hb = mv(np.abs(rel), b.h)
-        lo = np.minimum(-a.h, cb - hb)
-        hi = np.maximum(a.h, cb + hb)
-        out = Volumes(a.kind, a.c + mv(a.R, (lo + hi) / 2), R=a.R.copy(), h=(hi - lo) / 2)
-    a_empty, b_empty = a.is_empty, b.is_empty
-    if a_empty.any() or b_empty.any():
-        out[a_empty] = b[a_empty]
-        out[b_empty & ~a_empty] = a[b_empty & ~a_empty]
-    return out
+    out = _empty_like_packed(len(a))
+    merge_pass(KIND_CODE[a.kind], *pack(a), *pack(b), *out)
+    return unpack(a.kind, *out)
+
+
+def camera_pose(camera):
+    """The camera's world rotation (3, 3) and position (3,), as the kernels take them."""
+    return as_input(camera.rotation), as_input(np.asarray(camera.position, float))
 
 
 def areas(v, camera):
     """Projected areas (k,) in pixels of world volumes ``v`` under ``camera``
     (:mod:`vdad.projection`: exact, with viewport clipping and the near plane)."""
-    from .projection import box_areas, sphere_areas
-
-    Rc = camera.rotation
-    c = (v.c - np.asarray(camera.position, float)) @ Rc
-    if v.kind == "sphere":
-        return sphere_areas(camera, c, v.r)
-    return box_areas(camera, c, Rc.T @ v.R, v.h)
+    out = np.zeros(len(v))
+    areas_pass(KIND_CODE[v.kind], view_of(camera), *camera_pose(camera), *pack(v), out,
+               np.empty(3), np.empty((3, 3)), box_scratch())
+    return out

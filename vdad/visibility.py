@@ -23,12 +23,45 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bounding import Volumes, areas, body_volumes, check_volume, merge, place
+from ._linalg import as_input, inlined, pass_kernel
+from .bounding import (
+    KIND_CODE,
+    body_volumes,
+    camera_pose,
+    check_volume,
+    merge_volumes,
+    pack,
+    place_volume,
+    volume_area,
+)
 from .camera import camera_at, check_path, check_resolution
 from .errors import InputError
 from .kinematics import world_poses
+from .projection import box_scratch, view_of
 
 ESTIMATES = ("min", "node", "bodies")
+MIN, NODE, BODIES = 0, 1, 2                      # codes of ESTIMATES for the kernels
+
+
+def _ids(nodes):
+    return np.ascontiguousarray(nodes, np.int64)
+
+
+@inlined
+def child_slot(child, n_nodes):
+    """The slot of an assembly-tree child id (the ground, -1, is slot n_nodes)."""
+    return n_nodes if child < 0 else child
+
+
+@pass_kernel
+def sum_up_pass(nb, left, right, N):
+    """Node totals in ``N`` (n_nodes + 1,) of the bodies' values in
+    ``N[:nb]``: each internal node (post-order ids: children first) the sum of its
+    children's; the ground's slot stays 0."""
+    n_nodes = nb + left.shape[0]
+    N[n_nodes] = 0.0
+    for m in range(left.shape[0]):
+        N[nb + m] = N[child_slot(left[m], n_nodes)] + N[child_slot(right[m], n_nodes)]
 
 
 def sum_up(tree, per_body):
@@ -36,20 +69,97 @@ def sum_up(tree, per_body):
     of its bodies' (the last entry, the ground, 0)."""
     N = np.zeros(tree.n_nodes + 1)
     N[:tree.model.nb] = per_body
-    for lv in tree.levels:
-        N[lv.node] = N[lv.node_A] + N[lv.node_B]
+    left, right = tree.arrays[0], tree.arrays[1]
+    sum_up_pass(tree.model.nb, left, right, N)
     return N
 
 
-def _by_height(tree, nodes):
-    """Internal ``nodes`` (ascending: children first), batched by their height
-    among ``nodes`` (nodes outside at 0), lowest first."""
-    nb = tree.model.nb
-    height = np.zeros(tree.n_nodes + 1, int)
-    for C in nodes.tolist():
-        height[C] = 1 + max(height[tree.left[C - nb]], height[tree.right[C - nb]])
-    h = height[nodes]
-    return [nodes[h == k] for k in range(1, int(h.max()) + 1)] if len(nodes) else []
+@inlined
+def combine(estimate, N1, N2):
+    """``N_M`` of a node from its own volume's pixels ``N1`` and its bodies' ``N2``
+    (Kim 2008 eqs. 5-7: ``min``, ``node`` or ``bodies``)."""
+    if estimate == NODE:
+        return N1
+    if estimate == BODIES:
+        return N2
+    return min(N1, N2)
+
+
+@pass_kernel
+def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
+                  cc, Rcam, scratch):
+    """``N_M`` of every node (Kim 2008 §5.3, eqs. 5-7) into ``N`` (n_nodes + 1,):
+    the bodies' volumes ``body`` (packed ``c, R, h``, body frames) placed at their
+    world poses ``R``, ``p``, their areas; bottom-up, each internal node's volume
+    merged from its children's into ``world`` (n_nodes + 1 slots, the last an
+    empty ground) and its area ``N1``, and its bodies' total (``N``, then
+    combined). Camera: world pose ``Rc``, ``pc``, intrinsics ``view``."""
+    bc, bR, bh = body
+    c, Rv, h = world
+    n_nodes = nb + left.shape[0]
+    for i in range(nb):
+        place_volume(kind, bc[i], bR[i], bh[i], R[i], p[i], c[i], Rv[i], h[i])
+        N1[i] = volume_area(kind, view, Rc, pc, c[i], Rv[i], h[i], cc, Rcam, scratch)
+        N[i] = N1[i]
+    h[n_nodes, 0] = -1.0
+    N[n_nodes] = 0.0
+    N1[n_nodes] = 0.0
+    for m in range(left.shape[0]):
+        n, A, B = nb + m, child_slot(left[m], n_nodes), child_slot(right[m], n_nodes)
+        N[n] = N[A] + N[B]
+        if estimate != BODIES:
+            merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
+            N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
+    for n in range(n_nodes):
+        N[n] = combine(estimate, N1[n], N[n])
+
+
+@pass_kernel
+def region_coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, front, act, RF, pF,
+                         local, world, N2, N, cc, Rcam, scratch):
+    """``N_M`` of the adaptive region's nodes (``front`` rigid groups and ``act``
+    active nodes, ascending) into ``N``; every other node NaN. Each front node's
+    volume kept in its group frame (``local``) is placed at the group's world pose
+    ``RF``, ``pF`` (k, ...); each active node's is merged from its children's.
+    ``N2`` (n_nodes + 1,): the bodies' totals, or empty for ``estimate`` node."""
+    lc, lR, lh = local
+    c, Rv, h = world
+    n_nodes = nb + left.shape[0]
+    for n in range(n_nodes + 1):
+        N[n] = np.nan
+    h[n_nodes, 0] = -1.0
+    N[n_nodes] = 0.0
+    for k in range(front.shape[0]):
+        F = front[k]
+        place_volume(kind, lc[F], lR[F], lh[F], RF[k], pF[k], c[F], Rv[F], h[F])
+        N[F] = volume_area(kind, view, Rc, pc, c[F], Rv[F], h[F], cc, Rcam, scratch)
+    for k in range(act.shape[0]):
+        n = act[k]
+        A, B = child_slot(left[n - nb], n_nodes), child_slot(right[n - nb], n_nodes)
+        merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
+        N[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
+    if estimate != NODE:
+        for n in range(n_nodes):
+            N[n] = N2[n] if np.isnan(N[n]) else min(N[n], N2[n])
+
+
+@pass_kernel
+def refresh_local(kind, nb, left, right, first, stale, rel_R, rel_p, since, stamp, local, tmp):
+    """Volumes in their group frame of the ``stale`` rigid front nodes and of their
+    subtrees (internal ids ``first[F - nb]`` to ``F``, children first): each node
+    ``C`` encloses its ``A`` child's volume and its ``B`` child's placed at the pose
+    of ``B``'s top body in ``C``'s frame (``rel_R``, ``rel_p``); their ``stamp``
+    becomes their ``since``."""
+    lc, lR, lh = local
+    tc, tR, th = tmp
+    n_nodes = nb + left.shape[0]
+    for k in range(stale.shape[0]):
+        F = stale[k]
+        for m in range(first[F - nb], F - nb + 1):
+            C, A, B = nb + m, child_slot(left[m], n_nodes), child_slot(right[m], n_nodes)
+            place_volume(kind, lc[B], lR[B], lh[B], rel_R[C], rel_p[C], tc, tR, th)
+            merge_volumes(kind, lc[A], lR[A], lh[A], tc, tR, th, lc[C], lR[C], lh[C])
+            stamp[C] = since[C]
 
 
 class _Coverage:
@@ -80,68 +190,71 @@ class BoundingVolumes(_Coverage):
     """``N_M`` from bounding volumes (Kim 2008 §5.3, eqs. 5-7): ``volume`` one of
     ``"sphere"``, ``"obb"``, ``"aabb"``; ``estimate`` ``"min"`` (eq. 7),
     ``"node"`` (eq. 5, the node's own volume) or ``"bodies"`` (eq. 6, the sum
-    over its bodies)."""
+    over its bodies). Compiled per node (:func:`coverage_pass`,
+    :func:`region_coverage_pass`)."""
 
     def __init__(self, tree, camera, volume="sphere", estimate="min", resolution=None):
         super().__init__(tree, camera, resolution)
         if estimate not in ESTIMATES:
             raise InputError(f"unknown coverage estimate {estimate!r}; choose one of {ESTIMATES}")
         self.kind, self.estimate = check_volume(volume), estimate
-        self.body = body_volumes(self.model, volume)                  # body frames
-        n = tree.n_nodes
-        # node volumes in their rigid group's frame, valid while stamp == adaptive.since
-        self.local = Volumes.empty(volume, n + 1)
-        self.local[np.arange(self.model.nb)] = self.body
+        self._kind, self._estimate = KIND_CODE[volume], ESTIMATES.index(estimate)
+        nb, n = self.model.nb, tree.n_nodes
+        self.body = pack(body_volumes(self.model, volume))                # body frames
+        self._left, self._right = tree.arrays[0], tree.arrays[1]
+        # node volumes in world coordinates, and in their rigid group's frame (valid
+        # while stamp == adaptive.since); the last slot is the ground, empty
+        self.world = tuple(np.zeros((n + 1,) + a.shape[1:]) for a in self.body)
+        self.local = tuple(np.zeros((n + 1,) + a.shape[1:]) for a in self.body)
+        for a, b in zip(self.local, self.body, strict=True):
+            a[:nb] = b
+        self.local[2][nb:] = -1.0
         self.stamp = np.full(n + 1, np.nan)
+        self._first = np.arange(n - nb)          # first internal id of each subtree
+        for m in range(n - nb):
+            for child in (tree.left[m], tree.right[m]):
+                if child >= nb:
+                    self._first[m] = min(self._first[m], self._first[child - nb])
+        self._N1, self._N2 = np.zeros(n + 1), np.zeros(n + 1)
+        self._scratch = (np.empty(3), np.empty((3, 3)), box_scratch())
+        self._none = np.zeros(0)
 
     def __call__(self, t, q, adaptive=None):
         cam = self.camera(t)
-        tree, nb = self.tree, self.model.nb
-        need_bodies = self.estimate != "node" or self.kind == "aabb" or adaptive is None
-        if need_bodies:
-            world_bodies = place(self.body, *self.poses(q, adaptive))
-        N2 = sum_up(tree, areas(world_bodies, cam)) if self.estimate != "node" else None
-        if self.estimate == "bodies":
-            return N2
-        world = Volumes.empty(self.kind, tree.n_nodes + 1)
-        if adaptive is None or self.kind == "aabb":
-            world[np.arange(nb)] = world_bodies
-            for lv in tree.levels:
-                world[lv.node] = merge(world[lv.node_A], world[lv.node_B])
-            nodes = np.arange(tree.n_nodes)
-        else:
-            front = adaptive.front
-            self._refresh(front, adaptive)
-            world[front] = place(self.local[front], *adaptive.group_poses(q, front))
-            act = adaptive.act
-            for rows in _by_height(tree, act):
-                world[rows] = merge(world[tree.left[rows - nb]], world[tree.right[rows - nb]])
-            nodes = np.concatenate([front, act])
-        N1 = np.full(tree.n_nodes + 1, np.nan)
-        N1[nodes] = areas(world[nodes], cam)
-        N1[-1] = 0.0
-        return N1 if N2 is None else np.fmin(N1, N2)
+        view, (Rc, pc) = view_of(cam), camera_pose(cam)
+        nb, N = self.model.nb, np.empty(self.tree.n_nodes + 1)
+        if adaptive is None or self.kind == "aabb" or self.estimate == "bodies":
+            R, p = self.poses(q, adaptive)
+            coverage_pass(self._kind, self._estimate, view, Rc, pc, nb, self._left,
+                          self._right, self.body, as_input(R), as_input(p), self.world,
+                          self._N1, N, *self._scratch)
+            return N
+        N2 = self._none
+        if self.estimate == "min":
+            R, p = self.poses(q, adaptive)
+            coverage_pass(self._kind, BODIES, view, Rc, pc, nb, self._left, self._right,
+                          self.body, as_input(R), as_input(p), self.world, self._N1,
+                          self._N2, *self._scratch)
+            N2 = self._N2
+        front, act = adaptive.front, adaptive.act
+        self._refresh(front, adaptive)
+        RF, pF = adaptive.group_poses(q, front)
+        region_coverage_pass(self._kind, self._estimate, view, Rc, pc, nb, self._left,
+                             self._right, _ids(front), _ids(act), as_input(RF),
+                             as_input(pF), self.local, self.world, N2, N, *self._scratch)
+        return N
 
     def _refresh(self, front, adaptive):
         """Volumes in the group frame of the rigid ``front`` nodes whose cache is
-        stale, and of their subtrees, bottom-up from the bodies'."""
-        tree, since = self.tree, adaptive.since
+        stale, and of their subtrees, bottom-up from the bodies'
+        (:func:`refresh_local`)."""
+        since = adaptive.since
         stale = front[(front >= self.model.nb) & (self.stamp[front] != since[front])]
-        if not len(stale):
-            return
-        mark = np.zeros(tree.n_nodes + 1, bool)
-        mark[stale] = True
-        for lv in reversed(tree.levels):                          # down the subtrees
-            mark[lv.node] |= mark[lv.node_up]
-        g = adaptive.groups
-        for lv in tree.levels:
-            rows = np.flatnonzero(mark[lv.node])
-            if len(rows):
-                C = lv.node[rows]
-                B = place(self.local[lv.node_B[rows]], g.rel_R[C], g.rel_p[C])
-                self.local[C] = merge(self.local[lv.node_A[rows]], B)
-        marked = np.flatnonzero(mark)
-        self.stamp[marked] = since[marked]
+        if len(stale):
+            g = adaptive.groups
+            refresh_local(self._kind, self.model.nb, self._left, self._right, self._first,
+                          _ids(stale), g.rel_R, g.rel_p, since, self.stamp, self.local,
+                          tuple(np.zeros(a.shape[1:]) for a in self.local))
 
 
 class RenderedCounts(_Coverage):
