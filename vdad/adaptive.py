@@ -370,13 +370,26 @@ class AdaptiveDynamics:
         R_top, p_top = self.group_poses(q, group)
         return R_top @ R_in, p_top + np.einsum("kij,kj->ki", R_top, p_in)
 
+    def front_kinematics(self, q):
+        """The :class:`Kinematics` of the active joints at ``q`` (placements and
+        poses only, ``region.region_poses``): ``R``, ``p`` of each active joint's
+        child body, the frames of the front groups (through :attr:`top`)."""
+        kin = self._pose_kin
+        with compiling(region_poses):
+            region_poses(plan(self.model).arrays, self.region.arrays, as_input(q), kin.arrays)
+        return kin
+
+    @property
+    def top(self):
+        """The top body of every node (the body whose parent is outside it; -1 for
+        a node holding the ground), int64."""
+        return self._top
+
     def group_poses(self, q, nodes):
         """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of the frames of rigid ``nodes``
         (front nodes or bodies: their top body's frame; the world for grounded
         groups) at ``q``, from the active joints only."""
-        kin = self._pose_kin
-        with compiling(region_poses):
-            region_poses(plan(self.model).arrays, self.region.arrays, as_input(q), kin.arrays)
+        kin = self.front_kinematics(q)
         nodes = np.asarray(nodes, int)
         R = np.broadcast_to(np.eye(3), (len(nodes), 3, 3)).copy()
         p = np.zeros((len(nodes), 3))

@@ -18,6 +18,7 @@ it in time.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -102,16 +103,18 @@ class Camera:
         """The same view (position, direction, ``yfov``) at another resolution."""
         return replace(self, width=width, height=height)
 
-    @property
+    @cached_property
     def rotation(self) -> np.ndarray:
-        """Camera axes in world coordinates (3, 3): columns ``x`` (right), ``y``
-        (up), ``z`` (backwards)."""
+        """Camera axes in world coordinates (3, 3), read-only: columns ``x``
+        (right), ``y`` (up), ``z`` (backwards)."""
         pos, tgt, up = (np.asarray(v, float) for v in (self.position, self.target, self.up))
         z = _direction(pos - tgt)
         z /= np.linalg.norm(z)
         x = _direction(np.cross(_direction(up), z))
         x /= np.linalg.norm(x)
-        return np.stack([x, np.cross(z, x), z], axis=1)
+        R = np.stack([x, np.cross(z, x), z], axis=1)
+        R.setflags(write=False)
+        return R
 
     @property
     def pose(self) -> np.ndarray:

@@ -466,8 +466,9 @@ def body_poses(js, R_rel, p_rel):
     return R, p
 
 
-def world_poses(model, q):
+def world_poses(model, q, out=None):
     """World poses ``R`` (nb, 3, 3), ``p`` (nb, 3) of every body of ``model`` at
-    configuration ``q`` (nq,)."""
-    kin = _evaluate(plan(model), q)
+    configuration ``q`` (nq,), in the work arrays of the :class:`Kinematics`
+    ``out`` if given (then views of it, overwritten by the next call)."""
+    kin = _evaluate(plan(model), q, kin=out)
     return kin.R, kin.p

@@ -29,6 +29,7 @@ from .bounding import (
     body_volumes,
     camera_pose,
     check_volume,
+    copy_volume,
     merge_volumes,
     pack,
     place_volume,
@@ -36,7 +37,7 @@ from .bounding import (
 )
 from .camera import camera_at, check_path, check_resolution
 from .errors import InputError
-from .kinematics import world_poses
+from .kinematics import Kinematics, plan, world_poses
 from .projection import box_scratch, view_of
 
 ESTIMATES = ("min", "node", "bodies")
@@ -115,13 +116,15 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
 
 
 @pass_kernel
-def region_coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, front, act, RF, pF,
-                         local, world, N2, N, cc, Rcam, scratch):
+def region_coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, front, act, grounded,
+                         top, R, p, local, world, N2, N, cc, Rcam, scratch):
     """``N_M`` of the adaptive region's nodes (``front`` rigid groups and ``act``
     active nodes, ascending) into ``N``; every other node NaN. Each front node's
     volume kept in its group frame (``local``) is placed at the group's world pose
-    ``RF``, ``pF`` (k, ...); each active node's is merged from its children's.
-    ``N2`` (n_nodes + 1,): the bodies' totals, or empty for ``estimate`` node."""
+    (the world for a ``grounded`` group, else the pose ``R``, ``p`` of its ``top``
+    body from the active joints' kinematics); each active node's is merged from
+    its children's. ``N2`` (n_nodes + 1,): the bodies' totals, or empty for
+    ``estimate`` node."""
     lc, lR, lh = local
     c, Rv, h = world
     n_nodes = nb + left.shape[0]
@@ -131,7 +134,11 @@ def region_coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, front, a
     N[n_nodes] = 0.0
     for k in range(front.shape[0]):
         F = front[k]
-        place_volume(kind, lc[F], lR[F], lh[F], RF[k], pF[k], c[F], Rv[F], h[F])
+        if grounded[F]:
+            copy_volume(lc[F], lR[F], lh[F], c[F], Rv[F], h[F])
+        else:
+            b = top[F]
+            place_volume(kind, lc[F], lR[F], lh[F], R[b], p[b], c[F], Rv[F], h[F])
         N[F] = volume_area(kind, view, Rc, pc, c[F], Rv[F], h[F], cc, Rcam, scratch)
     for k in range(act.shape[0]):
         n = act[k]
@@ -173,17 +180,24 @@ class _Coverage:
                              f"every joint would be frozen; use method='adaptive' instead")
         self.path = check_path(camera)
         self.resolution = check_resolution(resolution)
+        self._last = (None, None)                        # a path's camera, at resolution
+        self._kin = Kinematics.empty(plan(self.model))
 
     def camera(self, t):
-        """The camera at time ``t`` at the counting resolution."""
+        """The camera at time ``t`` at the counting resolution (the last one again
+        while the path returns the same camera)."""
         cam = camera_at(self.path, t)
-        return cam if self.resolution is None else cam.with_resolution(*self.resolution)
+        if self.resolution is None:
+            return cam
+        if cam is not self._last[0]:
+            self._last = (cam, cam.with_resolution(*self.resolution))
+        return self._last[1]
 
     def poses(self, q, adaptive):
         """World poses of all bodies at ``q`` (from the adaptive region if given)."""
         if adaptive is not None:
             return adaptive.body_poses(q)
-        return world_poses(self.model, q)
+        return world_poses(self.model, q, self._kin)
 
 
 class BoundingVolumes(_Coverage):
@@ -238,10 +252,11 @@ class BoundingVolumes(_Coverage):
             N2 = self._N2
         front, act = adaptive.front, adaptive.act
         self._refresh(front, adaptive)
-        RF, pF = adaptive.group_poses(q, front)
+        kin = adaptive.front_kinematics(q)
         region_coverage_pass(self._kind, self._estimate, view, Rc, pc, nb, self._left,
-                             self._right, _ids(front), _ids(act), as_input(RF),
-                             as_input(pF), self.local, self.world, N2, N, *self._scratch)
+                             self._right, _ids(front), _ids(act), adaptive.groups.grounded,
+                             adaptive.top, kin.R, kin.p, self.local, self.world, N2, N,
+                             *self._scratch)
         return N
 
     def _refresh(self, front, adaptive):
