@@ -363,12 +363,12 @@ class AdaptiveDynamics:
 
     def body_poses(self, q, bodies=None):
         """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of ``bodies`` (default: all) at
-        ``q``: each body's pose in its rigid group (:meth:`RigidGroups.pose_in_group`)
-        composed with the group's pose from the active joints only."""
+        ``q``: each body's pose in its rigid group composed with the group's pose
+        from the active joints only (:meth:`RigidGroups.pose_in_group`, compiled)."""
         bodies = np.arange(self.model.nb) if bodies is None else np.asarray(bodies, int)
-        group, R_in, p_in = self.groups.pose_in_group(bodies, self.active)
-        R_top, p_top = self.group_poses(q, group)
-        return R_top @ R_in, p_top + np.einsum("kij,kj->ki", R_top, p_in)
+        kin = self.front_kinematics(q)
+        _, R, p = self.groups.pose_in_group(bodies, self.active, (self._top, kin.R, kin.p))
+        return R, p
 
     def front_kinematics(self, q):
         """The :class:`Kinematics` of the active joints at ``q`` (placements and
@@ -384,19 +384,6 @@ class AdaptiveDynamics:
         """The top body of every node (the body whose parent is outside it; -1 for
         a node holding the ground), int64."""
         return self._top
-
-    def group_poses(self, q, nodes):
-        """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of the frames of rigid ``nodes``
-        (front nodes or bodies: their top body's frame; the world for grounded
-        groups) at ``q``, from the active joints only."""
-        kin = self.front_kinematics(q)
-        nodes = np.asarray(nodes, int)
-        R = np.broadcast_to(np.eye(3), (len(nodes), 3, 3)).copy()
-        p = np.zeros((len(nodes), 3))
-        live = ~self.groups.grounded[nodes]
-        top = self._top[nodes[live]]
-        R[live], p[live] = kin.R[top], kin.p[top]
-        return R, p
 
     # --- one step -------------------------------------------------------------------------
 

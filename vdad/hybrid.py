@@ -95,13 +95,18 @@ class RigidGroups:
                             self.up, self.is_B, self.arrays, self.pending, self.mark,
                             self.order)
 
-    def pose_in_group(self, bodies, active):
+    def pose_in_group(self, bodies, active, frames=()):
         """For ``bodies``: the rigid group (front node) holding each, and the body's
-        pose ``(R, p)`` in the group frame (world frame for grounded groups)."""
-        bodies = np.asarray(bodies, np.int64)
+        pose ``(R, p)`` in the group frame (world frame for grounded groups); in
+        the world with ``frames`` = (top (N,), R, p of the active joints' child
+        bodies) (:func:`poses_in_groups`)."""
+        bodies = np.ascontiguousarray(bodies, np.int64)
         group = np.empty(len(bodies), np.int64)
         R, p = np.empty((len(bodies), 3, 3)), np.empty((len(bodies), 3))
-        poses_in_groups(bodies, active, self.up, self.is_B, self.rel_R, self.rel_p, group, R, p)
+        top, R_top, p_top = frames or (np.zeros(0, np.int64), np.zeros((0, 3, 3)),
+                                       np.zeros((0, 3)))
+        poses_in_groups(bodies, active, self.up, self.is_B, self.rel_R, self.rel_p, bool(frames),
+                        self.grounded, top, R_top, p_top, group, R, p)
         return group, R, p
 
 
@@ -272,9 +277,13 @@ def carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order):
 
 
 @kernel
-def poses_in_groups(bodies, active, up, is_B, rel_R, rel_p, group, R, p):
+def poses_in_groups(bodies, active, up, is_B, rel_R, rel_p, world, grounded, top, R_top, p_top,
+                    group, R, p):
     """For each of ``bodies``: the front node holding it (``group``) and its pose
-    ``(R, p)`` in that node's frame, composed up its rigid ancestors."""
+    ``(R, p)`` in that node's frame, composed up its rigid ancestors; with
+    ``world``, then composed with the group's world frame: the world for a
+    ``grounded`` group, else the pose ``R_top``, ``p_top`` (per body) of its
+    ``top`` body."""
     t = np.empty((3, 3))
     for k in range(bodies.shape[0]):
         node = bodies[k]
@@ -296,3 +305,13 @@ def poses_in_groups(bodies, active, up, is_B, rel_R, rel_p, group, R, p):
                         Rk[r, s] = t[r, s]
             node = u
         group[k] = node
+        if world and not grounded[node]:
+            Rb, pb = R_top[top[node]], p_top[top[node]]
+            mm3(Rb, Rk, t)
+            x0 = Rb[0, 0] * pk[0] + Rb[0, 1] * pk[1] + Rb[0, 2] * pk[2]
+            x1 = Rb[1, 0] * pk[0] + Rb[1, 1] * pk[1] + Rb[1, 2] * pk[2]
+            x2 = Rb[2, 0] * pk[0] + Rb[2, 1] * pk[1] + Rb[2, 2] * pk[2]
+            pk[0], pk[1], pk[2] = pb[0] + x0, pb[1] + x1, pb[2] + x2
+            for r in range(3):
+                for s in range(3):
+                    Rk[r, s] = t[r, s]
