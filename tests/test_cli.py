@@ -24,7 +24,7 @@ def test_run_pendulum_writes_json(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["render", "--help"],
-                                  ["reproduce", "--help"]])
+                                  ["reproduce", "--help"], ["compile", "--help"]])
 def test_help(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         main(argv)

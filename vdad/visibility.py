@@ -98,19 +98,21 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
     bc, bR, bh = body
     c, Rv, h = world
     n_nodes = nb + left.shape[0]
-    for i in range(nb):
-        place_volume(kind, bc[i], bR[i], bh[i], R[i], p[i], c[i], Rv[i], h[i])
-        N1[i] = volume_area(kind, view, Rc, pc, c[i], Rv[i], h[i], cc, Rcam, scratch)
-        N[i] = N1[i]
     h[n_nodes, 0] = -1.0
     N[n_nodes] = 0.0
     N1[n_nodes] = 0.0
-    for m in range(left.shape[0]):
-        n, A, B = nb + m, child_slot(left[m], n_nodes), child_slot(right[m], n_nodes)
-        N[n] = N[A] + N[B]
-        if estimate != BODIES:
+    for n in range(n_nodes):             # bodies, then internal nodes (children first)
+        if n < nb:
+            place_volume(kind, bc[n], bR[n], bh[n], R[n], p[n], c[n], Rv[n], h[n])
+        else:
+            A, B = child_slot(left[n - nb], n_nodes), child_slot(right[n - nb], n_nodes)
+            N[n] = N[A] + N[B]
+            if estimate == BODIES:
+                continue
             merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
-            N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
+        N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
+        if n < nb:
+            N[n] = N1[n]
     for n in range(n_nodes):
         N[n] = combine(estimate, N1[n], N[n])
 
@@ -132,18 +134,19 @@ def region_coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, front, a
         N[n] = np.nan
     h[n_nodes, 0] = -1.0
     N[n_nodes] = 0.0
-    for k in range(front.shape[0]):
-        F = front[k]
-        if grounded[F]:
-            copy_volume(lc[F], lR[F], lh[F], c[F], Rv[F], h[F])
+    nf = front.shape[0]
+    for k in range(nf + act.shape[0]):   # the front, then the active nodes (children first)
+        if k < nf:
+            n = front[k]
+            if grounded[n]:
+                copy_volume(lc[n], lR[n], lh[n], c[n], Rv[n], h[n])
+            else:
+                b = top[n]
+                place_volume(kind, lc[n], lR[n], lh[n], R[b], p[b], c[n], Rv[n], h[n])
         else:
-            b = top[F]
-            place_volume(kind, lc[F], lR[F], lh[F], R[b], p[b], c[F], Rv[F], h[F])
-        N[F] = volume_area(kind, view, Rc, pc, c[F], Rv[F], h[F], cc, Rcam, scratch)
-    for k in range(act.shape[0]):
-        n = act[k]
-        A, B = child_slot(left[n - nb], n_nodes), child_slot(right[n - nb], n_nodes)
-        merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
+            n = act[k - nf]
+            A, B = child_slot(left[n - nb], n_nodes), child_slot(right[n - nb], n_nodes)
+            merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
         N[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
     if estimate != NODE:
         for n in range(n_nodes):

@@ -1,0 +1,99 @@
+"""Compile the numba kernels ahead of a first run (``vdad compile``; ``docs/design.md``).
+
+The first call of each compiled pass compiles it and every kernel it inlines,
+one after another in one process: on two cores about a minute for the DCA and
+four for everything. :func:`compile_kernels` runs the first steps of small
+scenes in several processes at once, each a share of the passes (:data:`PARTS`),
+so that compiling uses every core; numba's on-disk cache keeps the result for
+every later process (a test suite, a notebook, ``vdad run``). Only the argument
+types of a call decide what compiles, so a few steps of each method reach the
+same kernels as any run of it.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+from .errors import VdadError
+
+
+def _dynamics():
+    """The DCA: forward dynamics, the compiled step loops (semi-implicit Euler and
+    RK4) with every scene's built-in forces."""
+    import numpy as np
+
+    from . import forward_dynamics
+    from .scenes import SCENES
+
+    small = {"pendulum": {"n_bodies": 4}, "hanging_dogs": {"n_dogs": 2}}
+    for name, make in SCENES.items():
+        scene = make(**small.get(name, {}))
+        scene.simulator().step(2)
+        scene.simulator(integrator="rk4").step(2)
+        forward_dynamics(scene.model, scene.q0, np.zeros(scene.model.nv))
+
+
+def _adaptive():
+    """Adaptive dynamics: evaluations, the look-ahead, region changes with the
+    locking impulse, both integrators, and the view-dependent region coverage."""
+    from .scenes import pendulum
+
+    scene = pendulum(8)
+    for options in ({"budget": 3, "dwell": 0}, {"budget": 3, "integrator": "rk4"}):
+        scene.simulator(method="adaptive", **options).step(4)
+    scene.simulator(method="view-bvh", threshold=1e-3, dwell=0).step(4)
+
+
+def _coverage():
+    """Bounding-volume coverage of a whole tree, every volume type, and the batch
+    forms of placements, merges and projected areas."""
+    from .bounding import VOLUMES, areas, body_volumes, merge, place
+    from .scenes import pendulum
+    from .visibility import BoundingVolumes
+
+    scene = pendulum(4)
+    sim = scene.simulator()
+    R, p = sim.body_poses()
+    for volume in VOLUMES:
+        BoundingVolumes(sim.tree, scene.camera, volume)(0.0, sim.q)
+        world = place(body_volumes(scene.model, volume), R, p)
+        areas(merge(world, world), scene.camera)
+
+
+#: the shares of the kernels, each compiled in a process of its own
+PARTS = {"dynamics": _dynamics, "adaptive": _adaptive, "coverage": _coverage}
+
+
+def run_part(name):
+    """Compile one of :data:`PARTS` in this process."""
+    PARTS[name]()
+
+
+def compile_kernels(jobs=2, parts=tuple(PARTS), out=sys.stderr):
+    """Compile ``parts`` of :data:`PARTS` in up to ``jobs`` processes at once (each
+    a fresh ``python -c``), saying on ``out`` when each is done. Raises
+    :class:`~vdad.errors.VdadError` with a part's stderr if it fails."""
+    if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
+        raise VdadError(f"jobs must be a positive whole number of processes, got {jobs!r}")
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown:
+        raise VdadError(f"unknown kernel parts {unknown}; choose from {list(PARTS)}")
+    t0 = time.perf_counter()
+
+    def one(name):
+        done = subprocess.run([sys.executable, "-c", f"from vdad.warmup import run_part; "
+                               f"run_part({name!r})"], capture_output=True, text=True)
+        print(f"vdad compile: {name} done after {time.perf_counter() - t0:.0f} s"
+              + ("" if done.returncode == 0 else " (failed)"), file=out, flush=True)
+        return name, done
+
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        results = list(pool.map(one, parts))
+    failed = [(name, done.stderr.strip()) for name, done in results if done.returncode != 0]
+    if failed:
+        raise VdadError("compiling the kernels failed: " + "; ".join(
+            f"{name}: {err.splitlines()[-1] if err else 'no message'}" for name, err in failed))
+    return time.perf_counter() - t0
