@@ -6,6 +6,7 @@ Everything here renders on EGL (Mesa llvmpipe in CI); nothing is skipped.
 import os
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -254,6 +255,24 @@ def test_closed_counter_refuses_and_others_keep_working():
     counter.close()
     assert np.array_equal(PixelCounter(model).counts(CAMERA, np.eye(3)[None], np.zeros((1, 3))),
                           before)
+
+
+def test_a_counter_collected_on_another_thread_is_released_quietly(monkeypatch):
+    """The last reference to a counter dropped on another thread runs its finalizer
+    there, where the context (current on this thread) cannot be made current: no
+    exception escapes the finalizer, and counting goes on here."""
+    model = free_bodies([[Geom("sphere", (0.3,))]])
+    R, p = np.eye(3)[None], np.zeros((1, 3))
+    expected = PixelCounter(model).counts(CAMERA, R, p)
+    unraisable = []
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
+    holder = [PixelCounter(model)]
+    holder[0].counts(CAMERA, R, p)
+    worker = threading.Thread(target=holder.clear)        # the last reference goes there
+    worker.start()
+    worker.join()
+    assert not holder and unraisable == []
+    assert np.array_equal(PixelCounter(model).counts(CAMERA, R, p), expected)
 
 
 def test_egl_failure_raises_render_error_with_the_install_hint(monkeypatch):

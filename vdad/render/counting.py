@@ -105,8 +105,15 @@ def _merged_geometry(model, environment, sections):
 
 
 def _release(GL, names):
-    """Delete a counter's GL objects (finalizer; the process-wide context stays)."""
-    context.make_current()
+    """Delete a counter's GL objects (finalizer; the process-wide context stays).
+    A garbage collection on another thread cannot make the context current there
+    (EGL_BAD_ACCESS while it is current on its own thread): the objects are then
+    left to the context, which frees them when the process ends, since a finalizer
+    must not raise."""
+    try:
+        context.make_current()
+    except RenderError:
+        return
     GL.glDeleteQueries(len(names["queries"]), names["queries"])
     GL.glDeleteFramebuffers(1, [names["framebuffer"]])
     GL.glDeleteRenderbuffers(2, names["renderbuffers"])
