@@ -239,6 +239,21 @@ def identity_pose(R, p):
 
 
 @inlined
+def compose_pose(Ra, pa, R, p, t):
+    """``(R, p) = (Ra, pa) (R, p)`` in place: ``R = Ra R``, ``p = pa + Ra p`` (a pose
+    given in frame ``a`` expressed where ``a`` has pose ``(Ra, pa)``); ``t`` (3, 3)
+    scratch."""
+    mm3(Ra, R, t)
+    x0 = Ra[0, 0] * p[0] + Ra[0, 1] * p[1] + Ra[0, 2] * p[2]
+    x1 = Ra[1, 0] * p[0] + Ra[1, 1] * p[1] + Ra[1, 2] * p[2]
+    x2 = Ra[2, 0] * p[0] + Ra[2, 1] * p[1] + Ra[2, 2] * p[2]
+    p[0], p[1], p[2] = pa[0] + x0, pa[1] + x1, pa[2] + x2
+    for r in range(3):
+        for s in range(3):
+            R[r, s] = t[r, s]
+
+
+@inlined
 def mm3(A, B, out):
     """``out = A B`` (3, 3)."""
     for i in range(3):

@@ -28,7 +28,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._linalg import inlined, inverse3, kernel, mm3, mv3, pass_kernel
+from ._linalg import (
+    compose_pose,
+    identity_pose,
+    inlined,
+    inverse3,
+    kernel,
+    mm3,
+    mv3,
+    pass_kernel,
+)
 from .heaps import sort_ascending
 from .kinematics import joint_placement, plan
 
@@ -288,30 +297,12 @@ def poses_in_groups(bodies, active, up, is_B, rel_R, rel_p, world, grounded, top
     for k in range(bodies.shape[0]):
         node = bodies[k]
         Rk, pk = R[k], p[k]
-        for r in range(3):
-            pk[r] = 0.0
-            for s in range(3):
-                Rk[r, s] = 1.0 if r == s else 0.0
+        identity_pose(Rk, pk)
         while not active[up[node]]:
             u = up[node]
             if is_B[node]:
-                mm3(rel_R[u], Rk, t)
-                x0 = rel_R[u, 0, 0] * pk[0] + rel_R[u, 0, 1] * pk[1] + rel_R[u, 0, 2] * pk[2]
-                x1 = rel_R[u, 1, 0] * pk[0] + rel_R[u, 1, 1] * pk[1] + rel_R[u, 1, 2] * pk[2]
-                x2 = rel_R[u, 2, 0] * pk[0] + rel_R[u, 2, 1] * pk[1] + rel_R[u, 2, 2] * pk[2]
-                pk[0], pk[1], pk[2] = rel_p[u, 0] + x0, rel_p[u, 1] + x1, rel_p[u, 2] + x2
-                for r in range(3):
-                    for s in range(3):
-                        Rk[r, s] = t[r, s]
+                compose_pose(rel_R[u], rel_p[u], Rk, pk, t)
             node = u
         group[k] = node
         if world and not grounded[node]:
-            Rb, pb = R_top[top[node]], p_top[top[node]]
-            mm3(Rb, Rk, t)
-            x0 = Rb[0, 0] * pk[0] + Rb[0, 1] * pk[1] + Rb[0, 2] * pk[2]
-            x1 = Rb[1, 0] * pk[0] + Rb[1, 1] * pk[1] + Rb[1, 2] * pk[2]
-            x2 = Rb[2, 0] * pk[0] + Rb[2, 1] * pk[1] + Rb[2, 2] * pk[2]
-            pk[0], pk[1], pk[2] = pb[0] + x0, pb[1] + x1, pb[2] + x2
-            for r in range(3):
-                for s in range(3):
-                    Rk[r, s] = t[r, s]
+            compose_pose(R_top[top[node]], p_top[top[node]], Rk, pk, t)
