@@ -14,14 +14,15 @@ def test_balanced_chain_has_log_depth_and_two_ports(n):
     tree = AssemblyTree.balanced(pendulum(n).model)
     assert tree.depth == int(np.ceil(np.log2(n + 1)))       # n joints + the ground leaf
     assert max(len(p) for p in tree.ports) <= 2
-    assert sum(len(lv.nodes) for lv in tree.levels) == n
+    assert len(tree.joint) == n and sorted(tree.post) == list(range(tree.n_nodes))
 
 
 def test_tree_ports_stay_small_and_depth_logarithmic():
     model = random_tree(5, n=200, roots=3)
     tree = AssemblyTree.balanced(model)
     assert tree.depth <= 4 * np.log2(model.nb)
-    assert sum(len(lv.nodes) for lv in tree.levels) == model.nb
+    assert len(tree.joint) == model.nb
+    assert sorted(tree.post) == list(range(tree.n_nodes))
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -16,13 +16,11 @@ child body, ``-1`` if it holds the parent. Each node's ports are ordered
 The tree precomputes the flat arrays the compiled passes read
 (:attr:`AssemblyTree.arrays`: per node its ports' blocks and slots in the stores
 ``Phi`` (n_pairs, 6, 6) and ``b`` (n_slots, 6), per slot its port and where it
-comes from) and, for vectorised sums over nodes in numpy, the internal nodes in
-batches of equal height (``levels``, bottom-up).
+comes from).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -40,18 +38,6 @@ def _find(parent, i):
         parent[i] = parent[parent[i]]
         i = parent[i]
     return i
-
-
-@dataclass(frozen=True)
-class Level:
-    """A batch of k internal nodes of one height, for vectorised sums over nodes."""
-
-    nodes: np.ndarray       # (k,) internal node ids
-    joint: np.ndarray       # (k,) joint of each node
-    node: np.ndarray        # (k,) node id (nb + internal index)
-    node_A: np.ndarray      # (k,) node id of A (n_nodes: ground) and of B, and of
-    node_B: np.ndarray      #   the parent node (n_nodes: none), for node stores
-    node_up: np.ndarray
 
 
 def _merge(model, order):
@@ -116,7 +102,6 @@ class AssemblyTree(Immutable):
     ``AssemblyTree(model, order)`` (joint names or indices, each once).
     Attributes: ``left``, ``right``, ``joint`` (internal nodes; children are
     body ids ``0..nb-1``, ``GROUND`` or ``nb + internal index``), ``height``,
-    ``levels`` (bottom-up list of :class:`Level` batches),
     ``ports`` (per node), ``n_slots``, ``n_nodes`` (bodies and
     internal nodes), ``up`` (parent node of every node, -1 at the roots),
     ``top`` (top body of every node: the body whose parent is outside it; -1 when
@@ -270,15 +255,6 @@ class AssemblyTree(Immutable):
                 s = slot_base[nb + i] + a
                 self.slot_child[s], self.slot_index[s], self.slot_sign[s] = (
                     child, self.ports[child].index(pt), sign)
-        levels = []
-        internal_height = self.height[nb:]
-        for h in range(1, self.depth + 1):
-            ids = np.flatnonzero(internal_height == h)
-            node = nb + ids
-            node_A = np.where(self.left[ids] == GROUND, n_nodes, self.left[ids])
-            node_up = np.where(self.up[node] < 0, n_nodes, self.up[node])
-            levels.append(Level(ids, self.joint[ids], node, node_A, self.right[ids], node_up))
-        self.levels = tuple(levels)
 
     @cached_property
     def arrays(self) -> tuple:
