@@ -304,10 +304,12 @@ def camera_pose(camera):
     return as_input(camera.rotation), as_input(np.asarray(camera.position, float))
 
 
-def areas(v, camera):
+def areas(v, camera, camera_frame=False):
     """Projected areas (k,) in pixels of world volumes ``v`` under ``camera``
-    (:mod:`vdad.projection`: exact, with viewport clipping and the near plane)."""
+    (:mod:`vdad.projection`: exact, with viewport clipping and the near plane);
+    with ``camera_frame``, ``v`` is given in the camera's coordinates."""
     out = np.zeros(len(v))
-    areas_pass(KIND_CODE[v.kind], view_of(camera), *camera_pose(camera), *pack(v), out,
-               np.empty(3), np.empty((3, 3)), box_scratch())
+    pose = (np.eye(3), np.zeros(3)) if camera_frame else camera_pose(camera)
+    areas_pass(KIND_CODE[v.kind], view_of(camera), *pose, *pack(v), out, np.empty(3),
+               np.empty((3, 3)), box_scratch())
     return out

@@ -24,14 +24,15 @@ Image coordinates are those of :mod:`vdad.camera` (origin bottom-left, y up).
 Compiled, one volume per kernel call (:func:`sphere_area`, :func:`box_area`),
 with the camera as the tuple ``view = (f, width, height, znear)``
 (:func:`view_of`); :func:`sphere_areas` and :func:`box_areas` are the batch
-forms for numpy callers.
+forms for numpy callers, in camera coordinates (``vdad.bounding.areas`` in the
+world).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._linalg import as_input, inlined, kernel, pass_kernel
+from ._linalg import inlined, kernel
 
 RIM_SAMPLES = 720                  # points per circle on the slow path of spheres
 MAX_VERTICES = 16                  # a box face clipped by the near plane and viewport: <= 9
@@ -308,20 +309,6 @@ def box_area(view, c, R, h, corners, xy, P, Q):
 
 # --- batches -------------------------------------------------------------------------------
 
-@pass_kernel
-def sphere_areas_pass(view, C, r, out):
-    """:func:`sphere_area` of spheres ``C`` (k, 3) (camera frame), ``r`` (k,)."""
-    for i in range(r.shape[0]):
-        out[i] = sphere_area(view, C[i, 0], C[i, 1], C[i, 2], r[i])
-
-
-@pass_kernel
-def box_areas_pass(view, C, R, h, out, corners, xy, P, Q):
-    """:func:`box_area` of boxes ``C`` (k, 3), ``R`` (k, 3, 3), ``h`` (k, 3)."""
-    for i in range(C.shape[0]):
-        out[i] = box_area(view, C[i], R[i], h[i], corners, xy, P, Q)
-
-
 def box_scratch():
     """Scratch arrays of :func:`box_area`: corners, their pixels, two polygons."""
     return (np.empty((8, 3)), np.empty((8, 2)), np.empty((MAX_VERTICES, 3)),
@@ -331,19 +318,17 @@ def box_scratch():
 def sphere_areas(camera, center, radius):
     """Projected areas (k,) in pixels of spheres with centres ``center`` (k, 3) in
     *camera* coordinates and ``radius`` (k,) (negative: empty, area 0)."""
-    C = as_input(np.reshape(center, (-1, 3)))
-    r = as_input(np.reshape(radius, -1))
-    out = np.zeros(len(r))
-    sphere_areas_pass(view_of(camera), C, r, out)
-    return out
+    from .bounding import Volumes, areas
+
+    return areas(Volumes("sphere", np.reshape(center, (-1, 3)),
+                         r=np.reshape(np.asarray(radius, float), -1)), camera, camera_frame=True)
 
 
 def box_areas(camera, center, R, half):
     """Projected areas (k,) in pixels of boxes given in *camera* coordinates:
     centres ``center`` (k, 3), axes ``R`` (k, 3, 3) (columns), half-extents
     ``half`` (k, 3) (any negative: empty box, area 0)."""
-    C = as_input(np.reshape(center, (-1, 3)))
-    out = np.zeros(len(C))
-    box_areas_pass(view_of(camera), C, as_input(np.reshape(R, (-1, 3, 3))),
-                   as_input(np.reshape(half, (-1, 3))), out, *box_scratch())
-    return out
+    from .bounding import Volumes, areas
+
+    return areas(Volumes("obb", np.reshape(center, (-1, 3)), R=np.reshape(R, (-1, 3, 3)),
+                         h=np.reshape(half, (-1, 3))), camera, camera_frame=True)
