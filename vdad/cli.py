@@ -7,7 +7,6 @@ Every command has ``--help``; results go to plain files (JSON, PNG, GIF, MP4).
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import sys
 import time
@@ -454,8 +453,7 @@ def main(argv=None):
         if args.command == "compile":
             from .warmup import compile_kernels
 
-            seconds = compile_kernels(args.jobs, out=io.StringIO() if args.no_progress
-                                      else sys.stderr)
+            seconds = compile_kernels(args.jobs, out=None if args.no_progress else sys.stderr)
             print(f"compiled the kernels in {seconds:.0f} s")
             return 0
     except VdadError as exc:

@@ -17,7 +17,7 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-from .errors import VdadError
+from .errors import InputError, VdadError
 
 
 def _dynamics():
@@ -72,22 +72,25 @@ def run_part(name):
     PARTS[name]()
 
 
-def compile_kernels(jobs=2, parts=tuple(PARTS), out=sys.stderr):
+def compile_kernels(jobs=2, parts=tuple(PARTS), out=None):
     """Compile ``parts`` of :data:`PARTS` in up to ``jobs`` processes at once (each
-    a fresh ``python -c``), saying on ``out`` when each is done. Raises
-    :class:`~vdad.errors.VdadError` with a part's stderr if it fails."""
+    a fresh ``python -c``), saying on the text stream ``out`` (None: nothing) when
+    each is done; returns the
+    seconds it took. Bad ``jobs`` or ``parts``: an InputError; a part that fails:
+    a :class:`~vdad.errors.VdadError` with the last line of its stderr."""
     if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
-        raise VdadError(f"jobs must be a positive whole number of processes, got {jobs!r}")
+        raise InputError(f"jobs must be a positive whole number of processes, got {jobs!r}")
     unknown = [p for p in parts if p not in PARTS]
     if unknown:
-        raise VdadError(f"unknown kernel parts {unknown}; choose from {list(PARTS)}")
+        raise InputError(f"unknown kernel parts {unknown}; choose from {list(PARTS)}")
     t0 = time.perf_counter()
 
     def one(name):
         done = subprocess.run([sys.executable, "-c", f"from vdad.warmup import run_part; "
                                f"run_part({name!r})"], capture_output=True, text=True)
-        print(f"vdad compile: {name} done after {time.perf_counter() - t0:.0f} s"
-              + ("" if done.returncode == 0 else " (failed)"), file=out, flush=True)
+        if out is not None:
+            print(f"vdad compile: {name} done after {time.perf_counter() - t0:.0f} s"
+                  + ("" if done.returncode == 0 else " (failed)"), file=out, flush=True)
         return name, done
 
     with ThreadPoolExecutor(max_workers=jobs) as pool:
