@@ -124,6 +124,44 @@ def test_port_inverse_inertia_is_J_Minv_JT():
             dca.node_blocks(tree, data, bad)
 
 
+def test_a_joint_of_six_dofs_gathers_its_childrens_blocks():
+    """(T7) with no constrained direction gives Y = 0, so (T11) keeps each child's
+    blocks and couples none across the joint (the merge skips its products):
+    a free joint inside a random tree, without armature and with it (Y != 0)."""
+    base = random_tree(4, n=10, kinds=("revolute", "free", "spherical"))
+    for model, zero in ((base, True), (with_armature(base, 4), False)):
+        q, qd, tau, f_ext = random_state(model, 4)
+        tree = AssemblyTree.balanced(model)
+        data = dca.make_data(tree)
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext, tree=tree, data=data)
+        assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
+        nb, checked = model.nb, 0
+        for i, j in enumerate(tree.joint):
+            if model.joints[j].kind != "free" or tree.left[i] < 0:
+                continue
+            C, A, B = nb + i, tree.left[i], tree.right[i]
+            assert (np.abs(data.Y[i]).max() == 0) == zero
+            Phi = dca.node_blocks(tree, data, C)
+            gathered = np.zeros_like(Phi)
+            for a, port in enumerate(tree.ports[C]):
+                for c, other in enumerate(tree.ports[C]):
+                    X = A if port in tree.ports[A] else B
+                    if other not in tree.ports[X]:
+                        continue
+                    blocks = dca.node_blocks(tree, data, X)
+                    ia, ic = tree.ports[X].index(port), tree.ports[X].index(other)
+                    block = blocks[6 * ia:6 * ia + 6, 6 * ic:6 * ic + 6]
+                    if a == c:                           # (T11) keeps it symmetric
+                        block = 0.5 * (block + block.T)
+                    gathered[6 * a:6 * a + 6, 6 * c:6 * c + 6] = block
+            if zero:
+                np.testing.assert_array_equal(Phi, gathered)
+            else:
+                assert np.abs(Phi - gathered).max() > 1e-6 * np.abs(Phi).max()
+            checked += 1
+        assert checked >= 1
+
+
 def _bodies_of(tree, node):
     nb = tree.model.nb
     if node < 0:

@@ -163,6 +163,24 @@ def mm6(A, B, out):
 
 
 @inlined
+def is_zero6(A):
+    """Whether every entry of ``A`` (6, 6) is zero."""
+    for i in range(6):
+        for j in range(6):
+            if A[i, j] != 0.0:
+                return False
+    return True
+
+
+@inlined
+def zero6(out):
+    """``out = 0`` (6, 6)."""
+    for i in range(6):
+        for j in range(6):
+            out[i, j] = 0.0
+
+
+@inlined
 def mv6(A, x, out):
     """``out = A x`` (6,)."""
     for i in range(6):

@@ -42,6 +42,7 @@ from ._linalg import (
     identity_pose,
     inlined,
     inverse_inertia_transpose,
+    is_zero6,
     kernel,
     mm6,
     mmt6_add,
@@ -56,6 +57,7 @@ from ._linalg import (
     quaternion_log,
     solve_general,
     symmetric_part,
+    zero6,
 )
 from .checks import check_count
 from .errors import InputError
@@ -456,15 +458,22 @@ def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma
 def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
     """(T11)-(T12) of internal node ``C = nb + i`` over its ports ``a, c`` with
     ``G_a = s_a Phi^X_{a j_X}``, kept unsigned in ``G[a]``, and ``GY[a] = G[a] Y``
-    (max ports, 6, 6), after :func:`joint_node`."""
+    (max ports, 6, 6), after :func:`joint_node`. A joint of six dofs without
+    armature has ``Y = 0`` ((T7) with an empty ``T``), so (T11) gathers the
+    children's blocks and skips the products (the free root joint of a floating
+    tree, merged with the torso's seven ports: 27 of a dog's 95 merge products)."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     C, A, jA, jB, Yj, bj = nb + i, left[i], port_A[i], port_B[i], Y[i], beta[i]
     P, s0 = n_ports[C], slot_base[C]
+    free = is_zero6(Yj)             # a joint of six dofs: (T11) only gathers blocks
     for a in range(P):
         X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]
         copy_block(Phi, pair_base[X], n_ports[X], ia, jA if X == A else jB, G[a])
-        mm6(G[a], Yj, GY[a])
+        if free:
+            zero6(GY[a])
+        else:
+            mm6(G[a], Yj, GY[a])
         ba = b[s0 + a]
         mv6(G[a], bj, ba)                                        # (T12)
         for r in range(6):
@@ -474,13 +483,13 @@ def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
         for cc in range(a, P):
             Cac = Phi[pair_base[C] + pair_offset(P, a, cc)]
             if slot_child[s0 + cc] != X:
-                for r in range(6):
-                    for s in range(6):
-                        Cac[r, s] = 0.0
+                zero6(Cac)
             elif cc == a:
                 symmetric_part(Phi[pair_base[X] + pair_offset(n_ports[X], ia, ia)], Cac)
             else:
                 copy_block(Phi, pair_base[X], n_ports[X], ia, slot_index[s0 + cc], Cac)
+            if free:
+                continue
             sign = -slot_sign[s0 + a] * slot_sign[s0 + cc]       # - G_a Y G_c^T
             if cc == a:
                 mmt6_add_symmetric(GY[a], G[cc], sign, Cac)
