@@ -423,12 +423,12 @@ def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma
     6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    v_start, nv_joint = js[6], js[7]
+    v_start, nv_joint, subspace = js[6], js[7], js[15]
     T, W, c_J = kin[3], kin[4], kin[8]
     A, B, j = left[i], right[i], joint[i]
     jA, jB = port_A[i], port_B[i]
-    d = nv_joint[j]
-    Wj, Yj, Wmj, bj, gj = W[j], Y[i], tmp[5], beta[i], gamma[i]
+    d, u = nv_joint[j], subspace[j]
+    Wj, Yj, Wmj, bj, gj = W[u], Y[i], tmp[5], beta[i], gamma[i]
     kB, sB = pair_base[B] + pair_offset(n_ports[B], jB, jB), slot_base[B] + jB
     for r in range(6):                                          # (T6), (T8)
         gj[r] = b[sB, r] - c_J[j, r]
@@ -440,7 +440,7 @@ def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma
             gj[r] -= b[sA, r]
             for s in range(6):
                 Wmj[r, s] += Phi[kA, r, s]
-    Tj, WT, K, Z = T[j], tmp[0], tmp[1], tmp[2]
+    Tj, WT, K, Z = T[u], tmp[0], tmp[1], tmp[2]
     if d == 1:                                  # (T7); hinges and slides: sizes known
         articulated_inverse(Wmj, Tj, 5, Yj, WT, K, Z)           # to the compiler, unrolled
     else:
@@ -528,7 +528,7 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
     ``tmp`` (>= 2, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    v_start, nv_joint = js[6], js[7]
+    v_start, nv_joint, subspace = js[6], js[7], js[15]
     W = kin[4]
     C, j = nb + i, joint[i]
     u, t = tmp[0, 0], tmp[0, 1]
@@ -547,7 +547,7 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
     mv6(Y[i], u, t)                                              # (T10)
     for r in range(6):
         fJ[r] = beta[i, r] - t[r]
-    Wj = W[j]                                                    # (T13)
+    Wj = W[subspace[j]]                                          # (T13)
     for k in range(nv_joint[j]):
         acc = 0.0
         for r in range(6):

@@ -132,7 +132,7 @@ def freeze_node(C, nb, tree, js, q, R_rel, p_rel, R3, groups):
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
-     stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
+     stage_anchor, stage_ref, stage_q, stage_v, s_pad, subspace) = js
     mass, com, inertia, Iinv, grounded, rel_R, rel_p, port_R, port_p, fN, fF, fK = groups
     ground = mass.shape[0] - 1
     i = C - nb

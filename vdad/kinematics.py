@@ -61,9 +61,11 @@ class JointSet:
     joint, ``q`` and ``qd`` indices; stage0, n_stages [k]: each joint's stages;
     s_pad [ns,6,3]: stage subspaces in post-stage frames. ``q_spring`` [nq],
     ``damping``, ``armature`` [nv] local.
-    S, T, W, T_pad_eye [k,6,6]: constant joint subspaces of one-stage joints
-    (multi-stage ones are computed from ``q`` by the kinematics); dof_index [k,6]:
-    local ``qd`` index of each column (``nv``: padding).
+    S, T, W [u,6,6]: the table of joint subspaces, ``subspace`` [k]: each joint's
+    row in it. One-stage joints with the same subspaces share a constant row (every
+    hinge of a chain about the same axis: one row), so the passes read a few
+    kilobytes instead of 0.86 kB per joint (``docs/design.md``, "Order");
+    multi-stage joints own a row, which the kinematics computes from ``q``.
     """
 
     model: object
@@ -97,17 +99,11 @@ class JointSet:
     S: np.ndarray
     T: np.ndarray
     W: np.ndarray
-    T_pad_eye: np.ndarray
-    dof_index: np.ndarray
+    subspace: np.ndarray
 
     @property
     def k(self) -> int:
         return len(self.joints)
-
-    @cached_property
-    def armature_ext(self) -> np.ndarray:
-        """``armature`` (nv + 1,) ending in 0, read through ``dof_index`` padding."""
-        return np.append(self.armature, 0.0)
 
     @cached_property
     def arrays(self) -> tuple:
@@ -115,13 +111,14 @@ class JointSet:
         costs numba ~0.1 µs per array to type, a namedtuple 3x that)."""
         return (self.order, self.parent, self.R0, self.p0, self.stage0, self.n_stages,
                 self.v_start, self.nv_joint, self.stage_kind, self.stage_axis,
-                self.stage_anchor, self.stage_ref, self.stage_q, self.stage_v, self.s_pad)
+                self.stage_anchor, self.stage_ref, self.stage_q, self.stage_v, self.s_pad,
+                self.subspace)
 
 
 @lru_cache(maxsize=64)
 def _model_tables(model):
     """Per-model constants: first stage of each joint, stage subspaces (ns, 6, 3)
-    and the constant ``S, T, W, T_pad_eye`` (nj, 6, 6) of one-stage joints."""
+    and the constant ``S, T, W`` (nj, 6, 6) of one-stage joints."""
     nb, ns = model.nb, model.ns
     first_stage = np.cumsum(model.n_stages_joint) - model.n_stages_joint
     s_pad = np.zeros((ns, 6, 3))
@@ -130,7 +127,6 @@ def _model_tables(model):
         s_pad[s, :, :sub.shape[1]] = sub
     S, T, W = (np.zeros((nb, 6, 6)) for _ in range(3))
     d = model.nv_joint
-    T_pad_eye = (np.arange(6) >= 6 - d[:, None])[:, :, None] * np.eye(6)
     one = np.flatnonzero(model.n_stages_joint == 1)
     S[one, :, :3] = s_pad[first_stage[one]]
     js = np.flatnonzero(model.n_stages_joint <= 1)      # fixed joints: T = 1
@@ -139,9 +135,24 @@ def _model_tables(model):
         Tj, Wj = J.complement(S[sel, :, :dj])
         T[sel, :, :6 - dj] = Tj
         W[sel, :, :dj] = Wj
-    for a in (first_stage, s_pad, S, T, W, T_pad_eye):
+    for a in (first_stage, s_pad, S, T, W):
         a.setflags(write=False)
-    return first_stage, s_pad, S, T, W, T_pad_eye
+    return first_stage, s_pad, S, T, W
+
+
+def subspace_table(S, T, W, multi):
+    """The rows ``S, T, W`` (u, 6, 6) of a joint set's subspace table from each
+    joint's (k, 6, 6), and each joint's row (k,): joints not in ``multi`` (k,)
+    with equal subspaces share one row, each joint in ``multi`` owns one."""
+    k = len(S)
+    STW = np.concatenate([S, T, W], axis=1).reshape(k, 108)
+    one = np.flatnonzero(~multi)
+    rows, inverse = np.unique(STW[one], axis=0, return_inverse=True)
+    subspace = np.empty(k, np.int64)
+    subspace[one] = inverse.ravel()
+    subspace[multi] = len(rows) + np.arange(int(multi.sum()))
+    table = np.concatenate([rows, STW[multi]]).reshape(-1, 18, 6)
+    return table[:, :6].copy(), table[:, 6:12].copy(), table[:, 12:].copy(), subspace
 
 
 @kernel
@@ -179,7 +190,7 @@ def forest_order(parent, order, root_of):
 
 def joint_set(model, joints, parent) -> JointSet:
     """The :class:`JointSet` of ``joints`` (k,) with local ``parent`` (k,) (vectorised)."""
-    first_stage, s_pad_all, S_all, T_all, W_all, T_pad_all = _model_tables(model)
+    first_stage, s_pad_all, S_all, T_all, W_all = _model_tables(model)
     js = np.asarray(joints, int)
     parent = np.asarray(parent, int)
     k = len(js)
@@ -195,7 +206,7 @@ def joint_set(model, joints, parent) -> JointSet:
     stage_v = model.stage_v[stages] - model.v_start[js][sj] + v_start[sj]
     stage_nv = np.asarray(J.STAGE_NV)[stage_kind]
     damping = np.repeat(model.stage_damping[stages], stage_nv)
-    dof_index = np.where(np.arange(6) < nv_j[:, None], v_start[:, None] + np.arange(6), nv)
+    S, T, W, subspace = subspace_table(S_all[js], T_all[js], W_all[js], ns_j > 1)
     order, root_of = np.empty(k, np.int64), np.empty(k, np.int64)
     forest_order(parent, order, root_of)
     R0, p0 = model.placement_R[js], model.placement_p[js]
@@ -207,8 +218,7 @@ def joint_set(model, joints, parent) -> JointSet:
         ns_j.astype(i64), sj, stage_kind.astype(i64), model.stage_axis[stages],
         model.stage_anchor[stages], model.stage_ref[stages], model.stage_stiffness[stages],
         stage_q.astype(i64), stage_v.astype(i64), s_pad_all[stages], model.q_spring[q_index],
-        damping, model.armature[v_index], S_all[js], T_all[js], W_all[js], T_pad_all[js],
-        dof_index)
+        damping, model.armature[v_index], S, T, W, subspace)
 
 
 @lru_cache(maxsize=64)
@@ -228,7 +238,8 @@ class Kinematics:
     """Kinematic quantities of one state of a :class:`JointSet` (shapes in brackets).
 
     R_rel [k,3,3], p_rel [k,3]: child frame in its local parent's body frame.
-    S, T, W [k,6,6]: joint subspaces in the child frame (padded).
+    S, T, W [u,6,6]: joint subspaces in the child frame (padded), the joint set's
+    table (:class:`JointSet`, a row per ``subspace[j]``).
     R [k,3,3], p [k,3]: child body frames in world coordinates.
     v [k,6]: child body velocities in body coordinates at the body origin.
     c [k,6]: velocity-product term c_J of (T4), child frame.
@@ -250,7 +261,7 @@ class Kinematics:
 
     @classmethod
     def empty(cls, js):
-        """Work arrays for ``js``, with its constant ``S, T, W``."""
+        """Work arrays for ``js``, with its subspace table."""
         k = js.k
         return cls(np.zeros((k, 3, 3)), np.zeros((k, 3)), js.S.copy(), js.T.copy(), js.W.copy(),
                    np.zeros((k, 3, 3)), np.zeros((k, 3)), np.zeros((k, 6)), np.zeros((k, 6)),
@@ -307,10 +318,11 @@ def joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_a
 
 
 @inlined
-def joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, stage_ref,
+def joint_subspace(j, u, stage0, n_stages, stage_kind, stage_axis, stage_anchor, stage_ref,
                    stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W, R3, v6, work):
     """``S = [X_{child<-r} s_r]`` of a multi-stage joint ``j`` ((J1),
-    ``docs/joints.md``) and its complements ``T``, ``W`` (T5). The transform from
+    ``docs/joints.md``) and its complements ``T``, ``W`` (T5), into row ``u`` of
+    the subspace table. The transform from
     each post-stage frame to the child frame is the product of the later stages,
     accumulated from the last stage back. ``R3`` (>= 3, 3, 3), ``v6`` (>= 5, 6),
     ``work`` (>= 3, 6, 6): scratch."""
@@ -320,7 +332,7 @@ def joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, st
         sufp[r] = 0.0
         for m in range(3):
             sufR[r, m] = 1.0 if r == m else 0.0
-    Sj = S[j]
+    Sj = S[u]
     for s in range(stage0[j] + n_stages[j] - 1, stage0[j] - 1, -1):
         for c in range(3 if stage_kind[s] >= 2 else 1):   # X_{child<-r} s_r by columns
             for i in range(6):
@@ -336,7 +348,7 @@ def joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, st
         for r in range(3):
             for m in range(3):
                 sufR[r, m] = Rn[r, m]
-    complement(Sj, nv_joint[j], T[j], W[j], work)
+    complement(Sj, nv_joint[j], T[u], W[u], work)
 
 
 @inlined
@@ -345,12 +357,13 @@ def joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, work):
     (:func:`joint_placement`) and, for a multi-stage joint, its subspaces
     (:func:`joint_subspace`)."""
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
-     stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
+     stage_anchor, stage_ref, stage_q, stage_v, s_pad, subspace) = js
     joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
                     stage_ref, stage_q, q, R_rel, p_rel, R3[1], R3[2], v6[1])
     if n_stages[j] > 1:
-        joint_subspace(j, stage0, n_stages, stage_kind, stage_axis, stage_anchor, stage_ref,
-                       stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W, R3, v6, work)
+        joint_subspace(j, subspace[j], stage0, n_stages, stage_kind, stage_axis, stage_anchor,
+                       stage_ref, stage_q, stage_v, s_pad, v_start, nv_joint, q, S, T, W, R3,
+                       v6, work)
 
 
 @inlined
@@ -372,12 +385,12 @@ def body_pose(j, parent, R_rel, p_rel, R, p):
 
 @inlined
 def body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_joint,
-                  R_rel, p_rel, S, qd, v, c, tmp):
+                  R_rel, p_rel, Sj, qd, v, c, tmp):
     """Velocity of joint ``j``'s child body, ``v = X v_parent + S qd`` (body axes, at
     its origin), and ``c_J = crm(v) S qd + sum_{r<j} crm(S_r qd_r) S_j qd_j``
-    (T4), (J1). ``tmp`` (>= 1, 6, 6): scratch."""
+    (T4), (J1), with ``Sj`` (6, 6) its subspace. ``tmp`` (>= 1, 6, 6): scratch."""
     pj = parent[j]
-    vj, cj, Sj = v[j], c[j], S[j]
+    vj, cj = v[j], c[j]
     if pj >= 0:
         motion_to_child(R_rel[j], p_rel[j], v[pj], vj)
     u, prefix, us = tmp[0, 0], tmp[0, 1], tmp[0, 2]
@@ -411,7 +424,7 @@ def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c, R3
     ``velocities``, the body velocity and ``c_J``. ``order`` may end early at a
     -1 (the active joints of adaptive dynamics, :mod:`vdad.region`)."""
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
-     stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
+     stage_anchor, stage_ref, stage_q, stage_v, s_pad, subspace) = js
     for idx in range(order.shape[0]):
         j = order[idx]
         if j < 0:
@@ -420,7 +433,7 @@ def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c, R3
         body_pose(j, parent, R_rel, p_rel, R, p)
         if velocities:
             body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_joint,
-                          R_rel, p_rel, S, qd, v, c, work)
+                          R_rel, p_rel, S[subspace[j]], qd, v, c, work)
 
 
 # --- the public functions ------------------------------------------------------------------
@@ -447,10 +460,11 @@ _NO_VELOCITY = np.zeros(0)
 
 
 def joint_kinematics(js, q):
-    """Child poses in local parent frames and the padded ``S, T, W`` of every joint
-    of ``js`` at its local configuration ``q``."""
+    """Child poses in local parent frames and the padded ``S, T, W`` (k, 6, 6) of
+    every joint of ``js`` at its local configuration ``q``."""
     kin = _evaluate(js, q)
-    return kin.R_rel, kin.p_rel, kin.S, kin.T, kin.W
+    u = js.subspace
+    return kin.R_rel, kin.p_rel, kin.S[u], kin.T[u], kin.W[u]
 
 
 @pass_kernel

@@ -284,7 +284,7 @@ def metric_node(i, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta, gamma, W
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint = js[6], js[7]
     C, A, B, j, jA, jB = nb + i, left[i], right[i], joint[i], port_A[i], port_B[i]
-    W, d, v0 = kin[4][j], nv_joint[j], v_start[j]
+    W, d, v0 = kin[4][js[15][j]], nv_joint[j], v_start[j]
     Yj, bj, gj = Y[i], beta[i], gamma[i]
     Pm, D, Nm, Z, T1 = mt[0], mt[1], mt[2], mt[3], mt[4]
     pm, g, rv, tv, t2 = mt[6, 0], mt[6, 1], mt[6, 2], mt[6, 3], mt[6, 4]
@@ -430,7 +430,7 @@ def active_kinematics(js, region, q, qd, velocities, kin):
     """:func:`~vdad.kinematics.kinematics_pass` over the active joints only, each
     on its kinematic parent with its pre-placed joint frame (:func:`rebuild`)."""
     ajs = (region[6], region[7], region[8], region[9], js[4], js[5], js[6], js[7], js[8], js[9],
-           js[10], js[11], js[12], js[13], js[14])
+           js[10], js[11], js[12], js[13], js[14], js[15])
     kinematics_pass(ajs, q, qd, velocities, *kin)
 
 
@@ -595,7 +595,7 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
-     stage_anchor, stage_ref, stage_q, stage_v, s_pad) = js
+     stage_anchor, stage_ref, stage_q, stage_v, s_pad, subspace) = js
     grounded, rel_R, rel_p, port_R, port_p = groups[4], groups[5], groups[6], groups[7], groups[8]
     R_rel, p_rel, S, T, W, R, pw, v, c_J, R3, v6, kwork = kin
     active, desc, visit, counts, la, wA = (region[0], region[2], region[4], region[10],

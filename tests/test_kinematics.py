@@ -1,0 +1,62 @@
+"""Joint sets and their subspace tables (vdad.kinematics, theory §3)."""
+
+import numpy as np
+from strategies import random_state, random_tree, relative_error, tolerance
+
+import vdad
+from vdad import joints as J
+from vdad import reference
+from vdad.kinematics import joint_kinematics, joint_set, plan
+from vdad.scenes import pendulum
+
+
+def test_equal_joint_subspaces_share_one_row():
+    """Every hinge of a chain turns about the same axis: one row of S, T, W serves
+    all of them, and joint_kinematics still gives each joint its own."""
+    model = pendulum(50).model
+    js = plan(model)
+    assert js.S.shape == js.T.shape == js.W.shape == (1, 6, 6)
+    assert np.array_equal(js.subspace, np.zeros(50, np.int64))
+    _, _, S, T, W = joint_kinematics(js, model.q_neutral)
+    assert S.shape == (50, 6, 6)
+    axis = J.stage_subspace(model.stage_kind[0], model.stage_axis[0], model.stage_anchor[0])
+    np.testing.assert_array_equal(S[:, :, :1], np.broadcast_to(axis, (50, 6, 1)))
+    for j in range(50):                          # (T5): T^T S = 0, W^T S = 1, W^T T = 0
+        np.testing.assert_allclose(T[j, :, :5].T @ S[j, :, :1], 0, atol=1e-15)
+        np.testing.assert_allclose(W[j, :, :1].T @ S[j, :, :1], [[1]], rtol=1e-15)
+        np.testing.assert_allclose(W[j, :, :1].T @ T[j, :, :5], 0, atol=1e-15)
+
+
+def test_multi_stage_joints_own_their_rows():
+    """Joints of several stages get a row each, filled from q by the kinematics;
+    one-stage joints with different subspaces get different rows; a subset of the
+    joints (as adaptive dynamics and force elements build) has its own table."""
+    model = random_tree(3, n=24, composite=True)
+    js = plan(model)
+    multi = np.flatnonzero(model.n_stages_joint > 1)
+    assert len(multi) > 0
+    assert len(set(js.subspace[multi])) == len(multi)
+    assert not set(js.subspace[multi]) & set(np.delete(js.subspace, multi))
+    q, _, _, _ = random_state(model, 3)
+    _, _, S, _, _ = joint_kinematics(js, q)
+    first = np.cumsum(model.n_stages_joint) - model.n_stages_joint
+    for j in range(model.nb):
+        d = model.nv_joint[j]
+        assert np.linalg.matrix_rank(S[j, :, :d]) == d
+        if model.n_stages_joint[j] == 1:         # a one-stage joint: its stage's subspace
+            s = first[j]
+            np.testing.assert_array_equal(S[j, :, :d], J.stage_subspace(
+                model.stage_kind[s], model.stage_axis[s], model.stage_anchor[s]))
+    part = [0] + [j for j in range(1, model.nb) if model.parent[j] == 0]
+    sub = joint_set(model, part, [-1] + [0] * (len(part) - 1))
+    assert len(sub.S) <= len(part)
+    np.testing.assert_array_equal(joint_kinematics(sub, q[sub.q_index])[2][1:],
+                                  S[part[1:]])
+
+
+def test_forward_dynamics_reads_the_shared_rows():
+    """The DCA on a chain whose hinges share one row equals the reference ABA."""
+    model = pendulum(30).model
+    q, qd, tau, f_ext = random_state(model, 1)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
