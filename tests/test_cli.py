@@ -23,6 +23,32 @@ def test_run_pendulum_writes_json(tmp_path, capsys):
     assert "ms per step" in capsys.readouterr().out
 
 
+def test_run_times_the_steps_after_the_first(tmp_path, capsys, monkeypatch):
+    """The first step loads or compiles the kernels (0.6 s to minutes): ms per step
+    leaves it out and the summary reports it apart."""
+    import time
+
+    from vdad.simulator import Simulator
+
+    step, calls = Simulator.step, []
+
+    def slow_first(self, n=1):
+        if not calls:
+            time.sleep(0.5)
+        calls.append(n)
+        return step(self, n)
+
+    monkeypatch.setattr(Simulator, "step", slow_first)
+    out = tmp_path / "run.json"
+    assert main(["run", "pendulum", "--bodies", "3", "--steps", "200", "--json", str(out),
+                 "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert calls[0] == 1 and sum(calls) == 200
+    assert data["first_step_s"] >= 0.5
+    assert 0 < data["ms_per_step"] < 1e3 * 0.5 / 199      # the sleep is not in it
+    assert "after a first step of 0.5" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("argv", [["--help"], ["run", "--help"], ["render", "--help"],
                                   ["reproduce", "--help"], ["compile", "--help"]])
 def test_help(argv, capsys):

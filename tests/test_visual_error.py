@@ -14,6 +14,7 @@ from vdad.camera import Camera
 from vdad.scenes import pendulum
 from vdad.visual_error import (
     ErrorTrace,
+    StepTimer,
     Trajectory,
     VisualError,
     measure,
@@ -302,6 +303,25 @@ def test_numpy_booleans_are_flags(scene):
 def test_trajectory_checks_ms_per_step(ms, message):
     with pytest.raises(InputError, match=message):
         Trajectory([0.1, 0.2], np.zeros((2, 3)), ms)
+
+
+def test_step_timer_leaves_out_the_first_frame():
+    """The first frame of a process loads or compiles the kernels: the time per
+    step is that of the later frames (all of them when there is one)."""
+    import time
+
+    sim = pendulum(3).simulator()
+    timer = StepTimer()
+    with timer.frame(sim):
+        time.sleep(0.3)
+        sim.step(4)
+    assert np.isclose(timer.ms_per_step, 1e3 * timer.frames[0][0] / 4)
+    for _ in range(3):
+        with timer.frame(sim):
+            sim.step(4)
+    assert [n for _, n in timer.frames] == [4, 4, 4, 4]
+    assert timer.ms_per_step < 1e3 * 0.3 / 12
+    assert np.isclose(timer.ms_per_step, 1e3 * sum(s for s, _ in timer.frames[1:]) / 12)
 
 
 def test_trajectory_ms_per_step_may_be_unknown():

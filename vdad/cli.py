@@ -345,21 +345,27 @@ def run_scene(args):
     scene = make_scene(args)
     sim = make_simulator(scene, args)
     chunk = max(1, args.steps // 100)
-    start = time.perf_counter()
+    first = elapsed = 0.0           # the first step loads (or compiles) the kernels
     with tqdm(total=args.steps, desc=f"{args.scene} ({scene.model.nb} bodies)", unit="step",
               disable=args.no_progress, file=sys.stderr) as bar:
         done = 0
         while done < args.steps:
-            n = min(chunk, args.steps - done)
+            n = 1 if done == 0 else min(chunk, args.steps - done)
+            start = time.perf_counter()
             sim.step(n)
+            if done == 0:
+                first = time.perf_counter() - start
+            else:
+                elapsed += time.perf_counter() - start
             done += n
             bar.update(n)
-    elapsed = time.perf_counter() - start
+    timed = args.steps - 1 if args.steps > 1 else 1
     summary = {
         "scene": scene.name, "method": args.method, "integrator": args.integrator,
         "bodies": scene.model.nb, "joints": scene.model.nb, "dofs": scene.model.nv,
         "steps": args.steps, "dt": sim.dt, "simulated_time": sim.t,
-        "ms_per_step": 1e3 * elapsed / args.steps, "final_q": sim.q.tolist(),
+        "ms_per_step": 1e3 * (elapsed if args.steps > 1 else first) / timed,
+        "first_step_s": first, "final_q": sim.q.tolist(),
         "final_qd": sim.qd.tolist(), "params": scene.params, "options": sim.options,
     }
     if sim.history:
@@ -370,9 +376,11 @@ def run_scene(args):
     active = (f", {summary['active_joints_mean']:.1f} of {scene.model.nb} joints active on "
               f"average" if sim.history else "")
     shown = describe_options(args.method, sim.options)
+    slow = (f" after a first step of {first:.2f} s (loading or compiling the kernels)"
+            if args.steps > 1 and first > 0.1 else "")
     print(f"{scene.description}: {args.steps} steps of {sim.dt} s with {args.method} "
           f"({shown + '; ' if shown else ''}{args.integrator}), {summary['ms_per_step']:.3f} "
-          f"ms per step{active}"
+          f"ms per step{slow}{active}"
           + (f"; summary in {args.json}" if args.json else ""))
     return 0
 

@@ -21,6 +21,7 @@ against a full-DCA reference run from the same initial state, in two ways:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 import zipfile
@@ -151,7 +152,8 @@ def _frames(steps, every):
 def record(sim, steps, every=1, progress=False) -> Trajectory:
     """Kim 2008 §3.1.2: step ``sim`` ``steps`` times and keep the state after every
     ``every``-th step (frames at steps ``every``, ``2 every``, ...). Only the
-    ``sim.step`` calls are timed, for ``ms_per_step``; ``progress`` (bool) shows a
+    ``sim.step`` calls are timed, after the first frame, for ``ms_per_step``
+    (:class:`StepTimer`); ``progress`` (bool) shows a
     progress bar."""
     from tqdm import tqdm
 
@@ -160,15 +162,38 @@ def record(sim, steps, every=1, progress=False) -> Trajectory:
     progress = check_flag("progress", progress)
     t = np.empty(frames)                                    # (F,)
     q = np.empty((frames, sim.model.nq))                    # (F, nq)
-    elapsed = 0.0
+    timer = StepTimer()
     with tqdm(total=steps, unit="step", disable=not progress) as bar:
         for k in range(frames):
-            start = time.perf_counter()
-            sim.step(every)
-            elapsed += time.perf_counter() - start
+            with timer.frame(sim):
+                sim.step(every)
             t[k], q[k] = sim.t, sim.q
             bar.update(every)
-    return Trajectory(t, q, 1e3 * elapsed / steps)
+    return Trajectory(t, q, timer.ms_per_step)
+
+
+class StepTimer:
+    """Wall time of a simulator's frames (``with timer.frame(sim): sim.step(n)``);
+    :attr:`ms_per_step` leaves out the first frame once there are others, since a
+    process's first step loads the kernels from numba's cache (about 0.6 s) or
+    compiles them, a thousand times a step of a small model."""
+
+    def __init__(self):
+        self.frames = []                       # (seconds, steps) per frame
+
+    @contextlib.contextmanager
+    def frame(self, sim):
+        start, count = time.perf_counter(), sim.step_count
+        try:
+            yield
+        finally:
+            self.frames.append((time.perf_counter() - start, sim.step_count - count))
+
+    @property
+    def ms_per_step(self) -> float:
+        frames = self.frames[1:] if len(self.frames) > 1 else self.frames
+        steps = sum(n for _, n in frames)
+        return 1e3 * sum(s for s, _ in frames) / steps if steps else np.nan
 
 
 def poses(model, q):
@@ -374,10 +399,11 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
     stops the run there, with the frames so far.
 
     Returns the :class:`ErrorTrace` and a dict ``info``: ``ms_per_step`` (of the
-    ``sim.step`` calls only), ``reference_ms_per_step`` (of the lockstep reference
-    or the Trajectory's), ``steps`` taken, ``failure`` (None or the
-    SimulationError's message), ``active_joints``, the mean number of active
-    joints per step (``model.nb`` without adaptive dynamics), and ``node_visits``,
+    ``sim.step`` calls only, after the first frame: :class:`StepTimer`),
+    ``reference_ms_per_step`` (of the lockstep reference or the Trajectory's),
+    ``steps`` taken, ``failure`` (None or the SimulationError's message),
+    ``active_joints``, the mean number of active joints per step (``model.nb``
+    without adaptive dynamics), and ``node_visits``,
     the mean number of assembly-tree nodes the dynamics touched per step
     (:attr:`~vdad.adaptive.StepStats.node_visits`; every node without adaptive
     dynamics): the work that the time per step follows once coverage is paid."""
@@ -409,23 +435,20 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
 
     lockstep = isinstance(reference, Simulator)
     start_step, start_history = sim.step_count, len(sim.history)
-    rows, failure, elapsed, reference_elapsed = [], None, 0.0, 0.0
+    rows, failure, timer, reference_timer = [], None, StepTimer(), StepTimer()
     with VisualError(sim.model, camera, environment, resolution, per_body, pixels) as error, \
             tqdm(total=steps, unit="step", disable=not progress) as bar:
         for k in range(frames):
-            start = time.perf_counter()
             try:
-                sim.step(every)
+                with timer.frame(sim):
+                    sim.step(every)
             except SimulationError as exc:
                 failure = str(exc)
-            finally:
-                elapsed += time.perf_counter() - start
             if failure is not None:
                 break
             if lockstep:
-                start = time.perf_counter()
-                reference.step(every)
-                reference_elapsed += time.perf_counter() - start
+                with reference_timer.frame(reference):
+                    reference.step(every)
                 q_ref = reference.q
             else:
                 q_ref = reference.q[k]
@@ -442,11 +465,8 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
         visits = float(np.mean([s.node_visits for s in history]))
     else:
         active = visits = np.nan
-    if not lockstep:
-        reference_ms = reference.ms_per_step
-    else:
-        reference_ms = 1e3 * reference_elapsed / (every * len(rows)) if rows else np.nan
-    info = dict(ms_per_step=1e3 * elapsed / done if done else np.nan,
+    reference_ms = reference_timer.ms_per_step if lockstep else reference.ms_per_step
+    info = dict(ms_per_step=timer.ms_per_step,
                 reference_ms_per_step=reference_ms, steps=done, failure=failure,
                 active_joints=active, node_visits=visits)
     table = np.array(rows, dtype=float).reshape(-1, 4)                     # (F, 4)
