@@ -76,25 +76,40 @@ def composite_character():
 
 
 def median_us(fn, budget_s):
-    fn()
-    t0 = time.perf_counter()
-    fn()
-    once = max(time.perf_counter() - t0, 1e-7)
-    number = max(1, int(0.05 / once))
-    repeats = max(3, min(25, int(budget_s / (once * number)) or 3))
-    times = []
-    for _ in range(repeats):
+    """Median µs per call of ``fn``, over batches of about 50 ms (3 to 25 of them
+    within ``budget_s``)."""
+    return medians_us({"fn": fn}, budget_s)["fn"]
+
+
+def medians_us(fns, budget_s):
+    """Median µs per call of each function of the dict ``fns``, timed in turns: each
+    round times a batch of about 50 ms of every function, so that all of them see
+    the same machine (on a shared VM its speed drifts by tens of per cent within a
+    minute, and a ratio of medians taken a minute apart drifts with it)."""
+    number, once = {}, {}
+    for key, fn in fns.items():
+        fn()
         t0 = time.perf_counter()
-        for _ in range(number):
-            fn()
-        times.append((time.perf_counter() - t0) / number)
-    return 1e6 * statistics.median(times)
+        fn()
+        once[key] = max(time.perf_counter() - t0, 1e-7)
+        number[key] = max(1, int(0.05 / once[key]))
+    per_round = sum(once[k] * number[k] for k in fns)
+    rounds = max(3, min(25, int(len(fns) * budget_s / per_round) or 3))
+    times = {key: [] for key in fns}
+    for _ in range(rounds):
+        for key, fn in fns.items():
+            t0 = time.perf_counter()
+            for _ in range(number[key]):
+                fn()
+            times[key].append((time.perf_counter() - t0) / number[key])
+    return {key: 1e6 * statistics.median(t) for key, t in times.items()}
 
 
-def time_vdad(model, q, qd, budget):
+def vdad_call(model, q, qd):
+    """``vdad.forward_dynamics`` on ``model`` with reused work arrays."""
     tree = default_tree(model)
     data = dca.make_data(tree)
-    return median_us(lambda: vdad.forward_dynamics(model, q, qd, tree=tree, data=data), budget)
+    return lambda: vdad.forward_dynamics(model, q, qd, tree=tree, data=data)
 
 
 # pin.Model.createData allocates nv^3 tensors: 13 GB at 600 dofs (anchors.md §1)
@@ -102,8 +117,15 @@ PIN_BYTES_AT_600 = 13e9
 
 
 def time_pinocchio(model, budget, copies=1):
-    """pin.aba on ``model`` (called ``copies`` times per sample, for forests of
-    identical trees); refused where createData would not fit in memory."""
+    """Median µs of :func:`pinocchio_call`, and its note."""
+    call, note = pinocchio_call(model, copies)
+    return (None if call is None else median_us(call, budget)), note
+
+
+def pinocchio_call(model, copies=1):
+    """pin.aba on ``model`` (called ``copies`` times per call, for forests of
+    identical trees), and a note; no call where createData would not fit in
+    memory or Pinocchio has no counterpart of a joint."""
     import os
 
     import pinocchio as pin
@@ -128,7 +150,7 @@ def time_pinocchio(model, budget, copies=1):
             pin.aba(pm, pd, qp, vp, tau)
 
     note = f"pin: {copies} calls on one tree" if copies > 1 else ""
-    return median_us(call, budget), note
+    return call, note
 
 
 COMPILE = """
@@ -158,6 +180,14 @@ def time_compile():
 
 
 def time_mujoco(model, budget):
+    """Median µs of :func:`mujoco_call`, and its note."""
+    call, note = mujoco_call(model)
+    return (None if call is None else median_us(call, budget)), note
+
+
+def mujoco_call(model):
+    """``mujoco.mj_forward`` on ``model`` converted to MuJoCo, and a note; no call
+    where MuJoCo does not compile it."""
     import mujoco
 
     from vdad.interop.mujoco import to_mujoco
@@ -167,7 +197,7 @@ def time_mujoco(model, budget):
     except Exception as exc:  # noqa: BLE001 (MuJoCo raises ValueError or its own errors)
         return None, f"mujoco: does not compile ({str(exc).splitlines()[0][:60]})"
     d.qvel[:] = np.random.default_rng(0).normal(size=m.nv)
-    return median_us(lambda: mujoco.mj_forward(m, d), budget), ""
+    return (lambda: mujoco.mj_forward(m, d)), ""
 
 
 def previous(label):
@@ -195,16 +225,16 @@ def main(argv=None):
         rng = np.random.default_rng(1)
         q = np.array(model.q_neutral)
         qd = rng.normal(size=model.nv) * 0.1
-        t_vdad = time_vdad(model, q, qd, budget)
-        if model.nb > 2000:
-            (t_pin, pin_note), (t_mj, mj_note) = (None, ""), (None, "")
-        else:
+        calls = {"vdad": vdad_call(model, q, qd)}
+        pin_note = mj_note = ""
+        if model.nb <= 2000:
             if one_tree is None:
-                t_pin, pin_note = time_pinocchio(model, budget)
+                calls["pin"], pin_note = pinocchio_call(model)
             else:
-                t_pin, pin_note = time_pinocchio(one_tree, budget,
-                                                 copies=model.nb // one_tree.nb)
-            t_mj, mj_note = time_mujoco(model, budget)
+                calls["pin"], pin_note = pinocchio_call(one_tree, model.nb // one_tree.nb)
+            calls["mujoco"], mj_note = mujoco_call(model)
+        t = medians_us({k: f for k, f in calls.items() if f is not None}, budget)
+        t_vdad, t_pin, t_mj = t["vdad"], t.get("pin"), t.get("mujoco")
         t_numpy = previous(label)
         row = dict(model=label, bodies=model.nb, dofs=model.nv, vdad_us=t_vdad,
                    us_per_body=t_vdad / model.nb, pinocchio_us=t_pin, mujoco_us=t_mj,
@@ -231,7 +261,8 @@ def fmt(x, digits=1):
 
 def write_table(rows, result):
     lines = [MARK[0], "",
-             f"Median µs per call; Python {result['python']}, numpy {result['numpy']}, "
+             f"Median µs per call (vdad, Pinocchio and MuJoCo timed in turns, 50 ms batches "
+             f"of each per round); Python {result['python']}, numpy {result['numpy']}, "
              f"numba {result['numba']}, {result['machine']}"
              f"{' (quick run)' if result['quick'] else ''}.", "",
              "| model | bodies | vdad DCA | µs per body | pin.aba | mj_forward | vdad / pin | "
