@@ -215,17 +215,22 @@ def main(argv=None):
     parser.add_argument("--out", default=str(DOCS / "bench_dynamics.json"))
     args = parser.parse_args(argv)
     budget = 0.5 if args.quick else 3.0
-    cases = [("chain 20", pendulum(20).model, None), ("chain 300", pendulum(300).model, None),
-             ("chain 1000", pendulum(1000).model, None),
-             ("chain 10000", pendulum(10000).model, None),
-             ("100 dogs (1600 bodies)", dog_forest(), dog_forest(1)),
-             ("character, composite joints (29 bodies)", composite_character(), None)]
+    # (label, model, one tree of a forest, a model timed in turns with this one)
+    cases = [("chain 20", pendulum(20).model, None, None),
+             ("chain 300", pendulum(300).model, None, None),
+             ("chain 1000", pendulum(1000).model, None, None),
+             ("chain 10000", pendulum(10000).model, None, pendulum(1000).model),
+             ("100 dogs (1600 bodies)", dog_forest(), dog_forest(1), None),
+             ("character, composite joints (29 bodies)", composite_character(), None, None)]
     rows = []
-    for label, model, one_tree in cases:
+    for label, model, one_tree, paired in cases:
         rng = np.random.default_rng(1)
         q = np.array(model.q_neutral)
         qd = rng.normal(size=model.nv) * 0.1
         calls = {"vdad": vdad_call(model, q, qd)}
+        if paired is not None:          # a cost per body against another size's, in turns
+            calls["paired"] = vdad_call(paired, np.array(paired.q_neutral),
+                                        rng.normal(size=paired.nv) * 0.1)
         pin_note = mj_note = ""
         if model.nb <= 2000:
             if one_tree is None:
@@ -236,12 +241,18 @@ def main(argv=None):
         t = medians_us({k: f for k, f in calls.items() if f is not None}, budget)
         t_vdad, t_pin, t_mj = t["vdad"], t.get("pin"), t.get("mujoco")
         t_numpy = previous(label)
+        per_body_ratio = None
+        if paired is not None:
+            per_body_ratio = (t_vdad / model.nb) / (t["paired"] / paired.nb)
+            pin_note = (f"per body {per_body_ratio:.2f}x a {paired.nb}-body chain's "
+                        f"({t['paired'] / paired.nb:.2f} µs), timed in turns")
         row = dict(model=label, bodies=model.nb, dofs=model.nv, vdad_us=t_vdad,
                    us_per_body=t_vdad / model.nb, pinocchio_us=t_pin, mujoco_us=t_mj,
                    vdad_over_pinocchio=None if t_pin is None else t_vdad / t_pin,
                    vdad_over_mujoco=None if t_mj is None else t_vdad / t_mj,
                    numpy_core_us=t_numpy,
                    speedup_over_numpy=None if t_numpy is None else t_numpy / t_vdad,
+                   per_body_over_paired=per_body_ratio,
                    notes="; ".join(x for x in (pin_note, mj_note) if x))
         rows.append(row)
         print(json.dumps(row))
