@@ -46,6 +46,63 @@ def _save(plt, fig, title, path):
     return Path(path)
 
 
+def _scene_label(rows, scene=None):
+    """``"pendulum (300 bodies)"``: the scene of ``rows`` (of ``scene`` if given) and
+    its size, the joints of its runs (one joint per body)."""
+    mine = [r for r in rows if scene is None or r["config"]["scene"] == scene]
+    name = scene or mine[0]["config"]["scene"]
+    sizes = sorted({r["joints"] for r in mine if r.get("joints")})
+    return f"{name} ({'/'.join(str(n) for n in sizes)} bodies)" if sizes else name
+
+
+def symlog_ticks(hi, linthresh):
+    """Ticks of a symlog axis from 0 to ``hi`` (> 0) linear below ``linthresh``: 0,
+    then 1, 2 and 5 times each power of ten from ``linthresh`` (every power once
+    there are more than four decades) below ``hi``, then ``hi``."""
+    ticks, decade = [0.0], linthresh
+    steps = (1, 2, 5) if np.log10(max(hi, linthresh) / linthresh) <= 4 else (1,)
+    while decade < hi:
+        ticks += [k * decade for k in steps if k * decade < 0.5 * hi]
+        decade *= 10
+    return ticks + [float(hi)]
+
+
+def _readable(ax, x=None, y=None):
+    """Ticks people can read on ``ax`` (call it after plotting): a symlog or log
+    axis named by ``x``/``y`` as ``("symlog", linthresh, hi)`` or ``("log",)`` gets
+    ticks at 1, 2 and 5 per decade (each digit where the data span less than a
+    decade and a half) labelled as plain numbers; a linear axis gets about eight
+    ticks. Every point keeps a margin from the edges."""
+    from matplotlib import ticker
+
+    plain = ticker.FuncFormatter(lambda v, _: f"{v:.3g}")
+    for axis, spec in ((ax.xaxis, x), (ax.yaxis, y)):
+        if spec is None:
+            axis.set_major_locator(ticker.MaxNLocator(nbins=8))
+            continue
+        if spec[0] == "symlog":
+            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)(
+                "symlog", linthresh=spec[1], linscale=0.5)
+            axis.set_major_locator(ticker.FixedLocator(symlog_ticks(spec[2], spec[1])))
+        else:
+            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
+            lim = ax.dataLim.intervalx if axis is ax.xaxis else ax.dataLim.intervaly
+            narrow = lim[0] > 0 and np.log10(lim[1] / lim[0]) < 1.5
+            axis.set_major_locator(ticker.LogLocator(
+                subs=np.arange(1.0, 10.0) if narrow else (1.0, 2.0, 5.0)))
+        axis.set_minor_locator(ticker.NullLocator())
+        axis.set_major_formatter(plain)
+    ax.margins(0.06)
+
+
+def _label_points(ax, xs, ys, values, color):
+    """Each point of a family labelled with its swept parameter."""
+    for x, y, v in zip(xs, ys, values, strict=True):
+        if np.isfinite(x) and np.isfinite(y):
+            ax.annotate(_num(v), (x, y), textcoords="offset points", xytext=(3, 4),
+                        fontsize=6, color=color)
+
+
 def _err(row, measure="mean_px", stat="mean"):
     value = row["error"][measure][stat]
     return np.nan if value is None else value
@@ -121,31 +178,40 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
             if bad:
                 ax.plot([x_of(r["config"]) for r in bad], [r[key] for r in bad], "x",
                         color=line.get_color(), label=f"{m} (diverged)")
-    for r in dca:
-        if r["ms_per_step"] is not None:
-            axes[1].axhline(r["ms_per_step"], color="k", ls="--", lw=1, label="full DCA")
-        axes[0].axhline(r["joints"], color="k", ls="--", lw=1, label="all joints")
+    joints = max([r["joints"] or 1 for r in rows] + [1])
+    axes[0].axhline(joints, color="k", ls="--", lw=1, label="all joints")
+    reference = [r["ms_per_step"] for r in dca if r["ms_per_step"] is not None]
+    label = "full DCA"
+    if not reference:               # each run's own full-DCA reference, timed beside it
+        reference = [r["reference_ms_per_step"] for r in rows
+                     if r["reference_ms_per_step"] is not None]
+        label = "full DCA (median of the runs' references)"
+    if reference:
+        axes[1].axhline(float(np.median(reference)), color="k", ls="--", lw=1, label=label)
     xs = sorted({x_of(r["config"]) for r in rows if r["config"]["method"] != "dca"})
-    for ax, ylabel in zip(axes, ("active joints", "ms per step"), strict=True):
-        ax.set_xscale("log")
+    # log axes: the active joints and the times span decades, and the reference
+    # lines (all joints, the DCA) would squeeze linear curves into a tenth
+    _readable(axes[0], ("log",), ("symlog", 1.0, joints))
+    axes[0].set_ylim(-0.3, 1.5 * joints)          # from no joint to all of them
+    _readable(axes[1], ("log",), ("log",))
+    for ax, ylabel in zip(axes, ("active joints (0, then log)", "ms per step (log)"),
+                          strict=True):
         ax.set_xticks(xs, [f"{x:g}" for x in xs])
-        ax.minorticks_off()
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.legend(fontsize=8)
-    png = _save(plt, fig, title, Path(out) / f"{name}.png")
+    png = _save(plt, fig, title.format(scene=_scene_label(rows)), Path(out) / f"{name}.png")
     return [png, write_csv(Path(out) / f"{name}.csv", header, table)]
 
 
 def write_figure8(rows, out):
     return _sweep_figure(rows, out, "figure8", lambda c: c["options"]["threshold"],
-                         "error threshold", "Figure 8: 300-body pendulum against the threshold")
+                         "error threshold", "Figure 8: {scene} against the threshold")
 
 
 def write_figure9(rows, out):
     return _sweep_figure(rows, out, "figure9", lambda c: c["scene_args"]["camera_distance"],
-                         "viewer distance (m)",
-                         "Figure 9: 300-body pendulum against the viewer's distance")
+                         "viewer distance (m)", "Figure 9: {scene} against the viewer's distance")
 
 
 # --- Figure 6: 100 hanging dogs --------------------------------------------------------
@@ -208,19 +274,26 @@ def write_speed_vs_error(rows, out):
                 runs = sorted((r for r in mine if family(r["config"]) == f
                                and not r["failure"]), key=lambda r: parameter(r["config"]))
                 if runs:                                # joined along the swept parameter
-                    ax.plot([_err(r, measure) for r in runs], [r["speedup"] for r in runs],
-                            "o-", label=f, ms=4)
+                    xs, ys = [_err(r, measure) for r in runs], [r["speedup"] for r in runs]
+                    line, = ax.plot(xs, ys, "o-", label=f, ms=4)
+                    _label_points(ax, xs, ys, [parameter(r["config"]) for r in runs],
+                                  line.get_color())
             bad = [r for r in mine if r["failure"]]
             if bad:
                 ax.plot([_err(r, measure) for r in bad], [r["speedup"] for r in bad], "kx",
                         label="diverged (until then)")
             ax.axhline(1.0, color="k", ls="--", lw=1)
-            ax.set_xscale("symlog", linthresh=0.1 if measure == "mean_px" else 1.0)
-            ax.set_xlim(left=0)
-            ax.set_xlabel(label + ", mean over frames")
-            ax.set_ylabel("speed-up over full DCA")
+            errors = [_err(r, measure) for r in mine]
+            hi = max([e for e in errors if np.isfinite(e)] + [1.0])
+            speedups = [r["speedup"] for r in mine if r["speedup"] and r["speedup"] > 0]
+            wide = bool(speedups) and max(speedups) > 10 * min(speedups)   # log past a decade
+            _readable(ax, ("symlog", 0.1 if measure == "mean_px" else 1.0, hi),
+                      ("log",) if wide else None)
+            ax.set_xlabel(label + ", mean over frames (0, then log)")
+            ax.set_ylabel("speed-up over full DCA" + (" (log)" if wide else ""))
         axes[1].legend(fontsize=7)
-        files += [_save(plt, fig, f"{scene}: speed-up against measured visual error",
+        files += [_save(plt, fig, f"{_scene_label(mine)}: speed-up against measured visual "
+                             "error (points: threshold, distance or sleep speed)",
                         Path(out) / f"speed_vs_error_{scene}.png"),
                   _write_error_over_time(mine, out, scene, plt)]
     return files
@@ -239,8 +312,11 @@ def _write_error_over_time(rows, out, scene, plt):
                     label=f"{f} ({_num(parameter(r['config']))})")
             ax.set_xlabel("simulated time (s)")
             ax.set_ylabel(label)
+    for ax in axes:
+        _readable(ax)
     axes[1].legend(fontsize=7)
-    return _save(plt, fig, f"{scene}: visual error over time (each family's median run)",
+    return _save(plt, fig, f"{_scene_label(rows)}: visual error over time (each family's "
+                 "median run)",
                  Path(out) / f"error_over_time_{scene}.png")
 
 
