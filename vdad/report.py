@@ -87,7 +87,9 @@ def _readable(ax, x=None, y=None):
         else:
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
             lim = ax.dataLim.intervalx if axis is ax.xaxis else ax.dataLim.intervaly
-            narrow = lim[0] > 0 and np.log10(lim[1] / lim[0]) < 1.5
+            if 0 < lim[0] == lim[1] < np.inf:           # one value: a decade around it
+                (ax.set_xlim if axis is ax.xaxis else ax.set_ylim)(lim[0] / 3, lim[1] * 3)
+            narrow = 0 < lim[0] <= lim[1] < np.inf and np.log10(lim[1] / lim[0]) < 1.5
             axis.set_major_locator(ticker.LogLocator(
                 subs=np.arange(1.0, 10.0) if narrow else (1.0, 2.0, 5.0)))
         axis.set_minor_locator(ticker.NullLocator())
