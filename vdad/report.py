@@ -68,11 +68,13 @@ def symlog_ticks(hi, linthresh):
 
 
 def _readable(ax, x=None, y=None):
-    """Ticks people can read on ``ax`` (call it after plotting): a symlog or log
-    axis named by ``x``/``y`` as ``("symlog", linthresh, hi)`` or ``("log",)`` gets
-    ticks at 1, 2 and 5 per decade (each digit where the data span less than a
-    decade and a half) labelled as plain numbers; a linear axis gets about eight
-    ticks. Every point keeps a margin from the edges."""
+    """Ticks people can read on ``ax`` (call it after plotting): a symlog axis named
+    by ``x``/``y`` as ``("symlog", values)`` is linear from 0 up to the power of ten
+    at or below the smallest positive value (within 1e-3 .. 1) and gets the ticks
+    of :func:`symlog_ticks` up to the largest; a ``("log",)`` axis gets ticks at 1,
+    2, 3 and 5 per decade (each digit within less than a decade, 1, 2, 5 past two,
+    one a decade past five); ticks are labelled as plain numbers. A linear axis
+    gets about eight ticks. Every point keeps a margin from the edges."""
     from matplotlib import ticker
 
     plain = ticker.FuncFormatter(lambda v, _: f"{v:.3g}")
@@ -81,17 +83,22 @@ def _readable(ax, x=None, y=None):
             axis.set_major_locator(ticker.MaxNLocator(nbins=8))
             continue
         if spec[0] == "symlog":
+            values = np.asarray([v for v in spec[1] if np.isfinite(v) and v > 0], float)
+            linthresh = 10.0 ** np.clip(np.floor(np.log10(values.min())), -3, 0) if len(
+                values) else 1.0
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)(
-                "symlog", linthresh=spec[1], linscale=0.5)
-            axis.set_major_locator(ticker.FixedLocator(symlog_ticks(spec[2], spec[1])))
+                "symlog", linthresh=linthresh, linscale=0.5)
+            hi = values.max() if len(values) else linthresh
+            axis.set_major_locator(ticker.FixedLocator(symlog_ticks(hi, linthresh)))
         else:
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
             lim = ax.dataLim.intervalx if axis is ax.xaxis else ax.dataLim.intervaly
             if 0 < lim[0] == lim[1] < np.inf:           # one value: a decade around it
                 (ax.set_xlim if axis is ax.xaxis else ax.set_ylim)(lim[0] / 3, lim[1] * 3)
-            narrow = 0 < lim[0] <= lim[1] < np.inf and np.log10(lim[1] / lim[0]) < 1.5
-            axis.set_major_locator(ticker.LogLocator(
-                subs=np.arange(1.0, 10.0) if narrow else (1.0, 2.0, 5.0)))
+            span = np.log10(lim[1] / lim[0]) if 0 < lim[0] <= lim[1] < np.inf else 3.0
+            subs = (np.arange(1.0, 10.0) if span < 1 else (1.0, 2.0, 3.0, 5.0) if span < 2
+                    else (1.0, 2.0, 5.0) if span < 5 else (1.0,))
+            axis.set_major_locator(ticker.LogLocator(subs=subs, numticks=40))
         axis.set_minor_locator(ticker.NullLocator())
         axis.set_major_formatter(plain)
     ax.margins(0.06)
@@ -193,7 +200,7 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
     xs = sorted({x_of(r["config"]) for r in rows if r["config"]["method"] != "dca"})
     # log axes: the active joints and the times span decades, and the reference
     # lines (all joints, the DCA) would squeeze linear curves into a tenth
-    _readable(axes[0], ("log",), ("symlog", 1.0, joints))
+    _readable(axes[0], ("log",), ("symlog", [1.0, joints]))
     axes[0].set_ylim(-0.3, 1.5 * joints)          # from no joint to all of them
     _readable(axes[1], ("log",), ("log",))
     for ax, ylabel in zip(axes, ("active joints (0, then log)", "ms per step (log)"),
@@ -286,11 +293,9 @@ def write_speed_vs_error(rows, out):
                         label="diverged (until then)")
             ax.axhline(1.0, color="k", ls="--", lw=1)
             errors = [_err(r, measure) for r in mine]
-            hi = max([e for e in errors if np.isfinite(e)] + [1.0])
             speedups = [r["speedup"] for r in mine if r["speedup"] and r["speedup"] > 0]
             wide = bool(speedups) and max(speedups) > 10 * min(speedups)   # log past a decade
-            _readable(ax, ("symlog", 0.1 if measure == "mean_px" else 1.0, hi),
-                      ("log",) if wide else None)
+            _readable(ax, ("symlog", errors), ("log",) if wide else None)
             ax.set_xlabel(label + ", mean over frames (0, then log)")
             ax.set_ylabel("speed-up over full DCA" + (" (log)" if wide else ""))
         axes[1].legend(fontsize=7)
