@@ -52,11 +52,11 @@ def figures(monkeypatch):
 
 
 def test_symlog_ticks_run_from_zero_to_the_largest_value():
-    assert report.symlog_ticks(300, 1.0) == [0, 1, 2, 5, 10, 20, 50, 100, 300]
-    assert report.symlog_ticks(34.0, 0.1) == [0, 0.1, 0.2, 0.5, 1, 2, 5, 10, 34.0]
+    assert report.symlog_ticks(50, 1.0) == [0, 1, 2, 5, 10, 20, 50]
+    assert report.symlog_ticks(3.4, 0.1) == [0, 0.1, 0.2, 0.5, 1, 3.4]
     assert report.symlog_ticks(0.05, 0.1) == [0, 0.05]
-    wide = report.symlog_ticks(1e6, 1.0)                  # one tick a decade past four
-    assert wide == [0, 1, 10, 100, 1e3, 1e4, 1e5, 1e6]
+    wide = report.symlog_ticks(3e5, 1.0)                  # one tick a decade past two
+    assert wide == [0, 1, 10, 100, 1e3, 1e4, 1e5, 3e5]
 
 
 @pytest.mark.parametrize("name", ["figure8", "figure9", "speed_vs_error"])

@@ -368,3 +368,32 @@ def test_a_copied_simulator_runs_the_same_compiled_kernels(options):
     sim.step(3)
     np.testing.assert_array_equal(twin.q, sim.q)
     assert {k: len(k.signatures) for k in kernels} == compiled
+
+
+def test_view_methods_evaluate_coverage_once_per_displayed_frame_by_default():
+    """docs/visibility.md, coverage once per frame: view-bvh and view-oq default to
+    the steps of one 60 Hz frame (17 at 1 ms, 8 at 2 ms, never below 1); a given
+    coverage_every is kept; the coverage runs on those steps (and on region
+    changes) only."""
+    from vdad.simulator import FRAME_RATE, frame_steps
+
+    assert FRAME_RATE == 60.0
+    assert (frame_steps(1e-3), frame_steps(2e-3), frame_steps(0.5)) == (17, 8, 1)
+    scene = pendulum(6)
+    assert scene.simulator(method="view-bvh").options["coverage_every"] == 17
+    assert scene.simulator(method="view-bvh", dt=2e-3).options["coverage_every"] == 8
+    assert scene.simulator(method="view-bvh", coverage_every=1).options["coverage_every"] == 1
+    assert "coverage_every" not in scene.simulator(method="dca").options
+    sim = scene.simulator(method="view-bvh", threshold=1e-4)
+    calls = []
+    coverage = sim.adaptive.coverage
+
+    def counted(t, q, adaptive):
+        calls.append(round(t / sim.dt))
+        return coverage(t, q, adaptive)
+
+    sim.adaptive.coverage = counted
+    sim.step(68)
+    frames = {k for k in range(68) if k % 17 == 0}
+    assert frames <= set(calls)
+    assert len(calls) < 68 / 2                          # not every step

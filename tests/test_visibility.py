@@ -19,7 +19,7 @@ def test_cached_node_volumes_equal_full_evaluation(volume):
     their N1 equals the one merged from all bodies' placed volumes at the same q."""
     scene = pendulum(n_bodies=48, axes="alternate", angle=1.2)
     sim = scene.simulator(method="view-bvh", volume=volume, estimate="node",
-                          threshold=2e-3, dwell=3)
+                          threshold=2e-3, dwell=3, coverage_every=1)   # N_M of every step
     full = BoundingVolumes(sim.tree, scene.camera, volume, estimate="node")
     internal_fronts = 0
     sim.step()                                       # builds the active region

@@ -98,7 +98,7 @@ def _method_options(parser):
     from .adaptive import DROPS, METRICS, POLICIES
     from .bounding import VOLUMES
     from .integrators import INTEGRATORS
-    from .simulator import ADAPTIVE_DEFAULTS, DEFAULTS, METHODS
+    from .simulator import ADAPTIVE_DEFAULTS, DEFAULTS, FRAME_RATE, METHODS
     from .visibility import ESTIMATES
 
     def default(name, method=None):
@@ -156,8 +156,8 @@ def _method_options(parser):
                       "id buffer (same counts, faster) (default "
                       f"{default('counting', 'view-oq')})")
     view.add_argument("--coverage-every", type=_positive_int,
-                      help="steps between coverage evaluations (default "
-                      f"{default('coverage_every')}: every step)")
+                      help="steps between coverage evaluations (default: the steps of "
+                      f"one displayed frame at {FRAME_RATE:g} Hz, e.g. 17 at dt 1 ms)")
     base = parser.add_argument_group("game-engine baselines",
                                      "with --method lod-distance or sleeping (threshold 0)")
     base.add_argument("--distance", type=_positive_float,

@@ -58,9 +58,9 @@ def _scene_label(rows, scene=None):
 def symlog_ticks(hi, linthresh):
     """Ticks of a symlog axis from 0 to ``hi`` (> 0) linear below ``linthresh``: 0,
     then 1, 2 and 5 times each power of ten from ``linthresh`` (every power once
-    there are more than four decades) below ``hi``, then ``hi``."""
+    there are more than two decades) below ``hi``, then ``hi``."""
     ticks, decade = [0.0], linthresh
-    steps = (1, 2, 5) if np.log10(max(hi, linthresh) / linthresh) <= 4 else (1,)
+    steps = (1, 2, 5) if np.log10(max(hi, linthresh) / linthresh) <= 2 else (1,)
     while decade < hi:
         ticks += [k * decade for k in steps if k * decade < 0.5 * hi]
         decade *= 10
@@ -68,6 +68,16 @@ def symlog_ticks(hi, linthresh):
 
 
 def _readable(ax, x=None, y=None):
+    """:func:`_set_readable`, with matplotlib's notice about expanding the limits
+    of an axis over one value (it expands them itself) kept quiet."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Attempting to set identical")
+        _set_readable(ax, x, y)
+
+
+def _set_readable(ax, x=None, y=None):
     """Ticks people can read on ``ax`` (call it after plotting): a symlog axis named
     by ``x``/``y`` as ``("symlog", values)`` is linear from 0 up to the power of ten
     at or below the smallest positive value (within 1e-3 .. 1) and gets the ticks
@@ -78,6 +88,11 @@ def _readable(ax, x=None, y=None):
     from matplotlib import ticker
 
     plain = ticker.FuncFormatter(lambda v, _: f"{v:.3g}")
+    for axis, spec in ((ax.xaxis, x), (ax.yaxis, y)):   # one value: a decade around it
+        lo, hi = ax.dataLim.intervalx if axis is ax.xaxis else ax.dataLim.intervaly
+        if lo == hi and np.isfinite(lo) and (spec is None or spec[0] == "log" or lo > 0):
+            (ax.set_xlim if axis is ax.xaxis else ax.set_ylim)(
+                *((lo / 3, lo * 3) if lo > 0 else (lo - 1, lo + 1)))
     for axis, spec in ((ax.xaxis, x), (ax.yaxis, y)):
         if spec is None:
             axis.set_major_locator(ticker.MaxNLocator(nbins=8))
@@ -90,11 +105,11 @@ def _readable(ax, x=None, y=None):
                 "symlog", linthresh=linthresh, linscale=0.5)
             hi = values.max() if len(values) else linthresh
             axis.set_major_locator(ticker.FixedLocator(symlog_ticks(hi, linthresh)))
+            (ax.set_xlim if axis is ax.xaxis else ax.set_ylim)(     # 0 and hi inside
+                -0.3 * linthresh, 1.5 * max(hi, linthresh))
         else:
-            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
             lim = ax.dataLim.intervalx if axis is ax.xaxis else ax.dataLim.intervaly
-            if 0 < lim[0] == lim[1] < np.inf:           # one value: a decade around it
-                (ax.set_xlim if axis is ax.xaxis else ax.set_ylim)(lim[0] / 3, lim[1] * 3)
+            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
             span = np.log10(lim[1] / lim[0]) if 0 < lim[0] <= lim[1] < np.inf else 3.0
             subs = (np.arange(1.0, 10.0) if span < 1 else (1.0, 2.0, 3.0, 5.0) if span < 2
                     else (1.0, 2.0, 5.0) if span < 5 else (1.0,))
@@ -200,8 +215,7 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
     xs = sorted({x_of(r["config"]) for r in rows if r["config"]["method"] != "dca"})
     # log axes: the active joints and the times span decades, and the reference
     # lines (all joints, the DCA) would squeeze linear curves into a tenth
-    _readable(axes[0], ("log",), ("symlog", [1.0, joints]))
-    axes[0].set_ylim(-0.3, 1.5 * joints)          # from no joint to all of them
+    _readable(axes[0], ("log",), ("symlog", [1.0, joints]))   # from no joint to all
     _readable(axes[1], ("log",), ("log",))
     for ax, ylabel in zip(axes, ("active joints (0, then log)", "ms per step (log)"),
                           strict=True):
