@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 
 import numpy as np
 
@@ -341,31 +340,28 @@ def _check_json(path):
 def run_scene(args):
     from tqdm import tqdm
 
+    from .visual_error import StepTimer
+
     _check_json(args.json)
     scene = make_scene(args)
     sim = make_simulator(scene, args)
     chunk = max(1, args.steps // 100)
-    first = elapsed = 0.0           # the first step loads (or compiles) the kernels
+    timer = StepTimer()             # the first step loads (or compiles) the kernels
     with tqdm(total=args.steps, desc=f"{args.scene} ({scene.model.nb} bodies)", unit="step",
               disable=args.no_progress, file=sys.stderr) as bar:
         done = 0
         while done < args.steps:
             n = 1 if done == 0 else min(chunk, args.steps - done)
-            start = time.perf_counter()
-            sim.step(n)
-            if done == 0:
-                first = time.perf_counter() - start
-            else:
-                elapsed += time.perf_counter() - start
+            with timer.frame(sim):
+                sim.step(n)
             done += n
             bar.update(n)
-    timed = args.steps - 1 if args.steps > 1 else 1
+    first = timer.frames[0][0]
     summary = {
         "scene": scene.name, "method": args.method, "integrator": args.integrator,
         "bodies": scene.model.nb, "joints": scene.model.nb, "dofs": scene.model.nv,
         "steps": args.steps, "dt": sim.dt, "simulated_time": sim.t,
-        "ms_per_step": 1e3 * (elapsed if args.steps > 1 else first) / timed,
-        "first_step_s": first, "final_q": sim.q.tolist(),
+        "ms_per_step": timer.ms_per_step, "first_step_s": first, "final_q": sim.q.tolist(),
         "final_qd": sim.qd.tolist(), "params": scene.params, "options": sim.options,
     }
     if sim.history:

@@ -68,31 +68,18 @@ def symlog_ticks(hi, linthresh):
 
 
 def _readable(ax, x=None, y=None):
-    """:func:`_set_readable`, with matplotlib's notice about expanding the limits
-    of an axis over one value (it expands them itself) kept quiet."""
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Attempting to set identical")
-        _set_readable(ax, x, y)
-
-
-def _set_readable(ax, x=None, y=None):
     """Ticks people can read on ``ax`` (call it after plotting): a symlog axis named
     by ``x``/``y`` as ``("symlog", values)`` is linear from 0 up to the power of ten
     at or below the smallest positive value (within 1e-3 .. 1) and gets the ticks
     of :func:`symlog_ticks` up to the largest; a ``("log",)`` axis gets ticks at 1,
     2, 3 and 5 per decade (each digit within less than a decade, 1, 2, 5 past two,
-    one a decade past five); ticks are labelled as plain numbers. A linear axis
-    gets about eight ticks. Every point keeps a margin from the edges."""
+    one a decade past five), or those given as ``("log", ticks)``; ticks are
+    labelled as plain numbers. A linear axis gets about eight ticks. Every point
+    keeps a margin from the edges; a log axis over a single value spans a decade
+    around it."""
     from matplotlib import ticker
 
     plain = ticker.FuncFormatter(lambda v, _: f"{v:.3g}")
-    for axis, spec in ((ax.xaxis, x), (ax.yaxis, y)):   # one value: a decade around it
-        lo, hi = ax.dataLim.intervalx if axis is ax.xaxis else ax.dataLim.intervaly
-        if lo == hi and np.isfinite(lo) and (spec is None or spec[0] == "log" or lo > 0):
-            (ax.set_xlim if axis is ax.xaxis else ax.set_ylim)(
-                *((lo / 3, lo * 3) if lo > 0 else (lo - 1, lo + 1)))
     for axis, spec in ((ax.xaxis, x), (ax.yaxis, y)):
         if spec is None:
             axis.set_major_locator(ticker.MaxNLocator(nbins=8))
@@ -109,11 +96,14 @@ def _set_readable(ax, x=None, y=None):
                 -0.3 * linthresh, 1.5 * max(hi, linthresh))
         else:
             lim = ax.dataLim.intervalx if axis is ax.xaxis else ax.dataLim.intervaly
+            if 0 < lim[0] and lim[1] <= lim[0] * (1 + 1e-9):   # one value: a decade
+                (ax.set_xlim if axis is ax.xaxis else ax.set_ylim)(lim[0] / 3, lim[1] * 3)
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
             span = np.log10(lim[1] / lim[0]) if 0 < lim[0] <= lim[1] < np.inf else 3.0
             subs = (np.arange(1.0, 10.0) if span < 1 else (1.0, 2.0, 3.0, 5.0) if span < 2
                     else (1.0, 2.0, 5.0) if span < 5 else (1.0,))
-            axis.set_major_locator(ticker.LogLocator(subs=subs, numticks=40))
+            axis.set_major_locator(ticker.FixedLocator(spec[1]) if len(spec) > 1 else
+                                   ticker.LogLocator(subs=subs, numticks=40))
         axis.set_minor_locator(ticker.NullLocator())
         axis.set_major_formatter(plain)
     ax.margins(0.06)
@@ -215,11 +205,10 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
     xs = sorted({x_of(r["config"]) for r in rows if r["config"]["method"] != "dca"})
     # log axes: the active joints and the times span decades, and the reference
     # lines (all joints, the DCA) would squeeze linear curves into a tenth
-    _readable(axes[0], ("log",), ("symlog", [1.0, joints]))   # from no joint to all
-    _readable(axes[1], ("log",), ("log",))
+    _readable(axes[0], ("log", xs), ("symlog", [1.0, joints]))   # from no joint to all
+    _readable(axes[1], ("log", xs), ("log",))
     for ax, ylabel in zip(axes, ("active joints (0, then log)", "ms per step (log)"),
                           strict=True):
-        ax.set_xticks(xs, [f"{x:g}" for x in xs])
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.legend(fontsize=8)
