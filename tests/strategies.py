@@ -169,3 +169,51 @@ def small_compiled_run(upto="steps"):
     sim = vdad.Simulator(model, q, qd, dt=1e-3, integrator="rk4", external=forces.external)
     sim.step(3)
     return dict(out, q=sim.q.tolist(), qd=sim.qd.tolist())
+
+
+def node_bodies(tree, node):
+    """The bodies of assembly-tree ``node`` (sorted; none for the ground, -1), by
+    recursion over its children: an independent path to a node's bodies."""
+    nb = tree.model.nb
+    if node < 0:
+        return []
+    if node < nb:
+        return [int(node)]
+    i = node - nb
+    return sorted(node_bodies(tree, tree.left[i]) + node_bodies(tree, tree.right[i]))
+
+
+def moved_pixels(tree, per_body, floating=True):
+    """``docs/visibility.md``, pixels a joint moves, by brute force from sets:
+    every node's largest, over the joints of its subtree, of the pixels
+    ``per_body`` (nb,) of the bodies the joint displaces (its successor's
+    descendants; with ``floating``, in a tree whose root joint is free, the
+    smaller side); a leaf its own pixels, the ground 0."""
+    model, nb = tree.model, tree.model.nb
+    below = [{b} for b in range(nb)]
+    for b in range(nb - 1, -1, -1):
+        if model.parent[b] >= 0:
+            below[model.parent[b]] |= below[b]
+    root = list(range(nb))
+    for b in range(nb):
+        if model.parent[b] >= 0:
+            root[b] = root[model.parent[b]]
+
+    def moved(j):
+        side = per_body[sorted(below[j])].sum()
+        r = root[j]
+        if floating and j != r and model.joints[r].kind == "free":
+            return min(side, per_body[sorted(below[r] - below[j])].sum())
+        return side
+
+    def joints(node):
+        if node < nb:
+            return []
+        i = node - nb
+        return [tree.joint[i]] + joints(tree.left[i]) + joints(tree.right[i])
+
+    N = np.zeros(tree.n_nodes + 1)
+    N[:nb] = per_body
+    for m in range(len(tree.joint)):
+        N[nb + m] = max(moved(j) for j in joints(nb + m))
+    return N

@@ -158,6 +158,7 @@ def test_adaptive_option_errors(argv, message, capsys):
 
 @pytest.mark.parametrize("method, extra", [
     ("view-bvh", ["--volume", "obb", "--estimate", "min"]),
+    ("view-bvh", ["--pixels", "moved"]),
     ("view-oq", ["--counting", "merged", "--resolution", "160x120"]),
 ])
 def test_run_view_methods(method, extra, tmp_path):
@@ -171,6 +172,9 @@ def test_run_view_methods(method, extra, tmp_path):
         data = json.loads(out.read_text())
         assert data["method"] == method and data["ms_per_phase_mean"]["visibility"] > 0
         assert data["params"]["camera_distance"] == float(distance)
+        given = dict(zip(extra[::2], extra[1::2], strict=True))
+        assert all(data["options"][k[2:]] == given[k] for k in ("--pixels", "--volume")
+                   if k in given)
         means.append(data["active_joints_mean"])
     assert means[0] > 4 and means[1] < 1, means
 

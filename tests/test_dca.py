@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from strategies import (
     coil_chain,
+    node_bodies,
     random_chain,
     random_configuration,
     random_state,
@@ -94,7 +95,7 @@ def test_port_inverse_inertia_is_J_Minv_JT():
     for node, ports in enumerate(tree.ports):
         if node < model.nb or len(ports) == 0:
             continue
-        bodies = sorted(_bodies_of(tree, node))
+        bodies = node_bodies(tree, node)
         i, k = bodies[0], bodies[-1]
         sub = _submodel(model, bodies)
         q_sub = np.concatenate([kin.p[i], vdad.spatial.rot_to_quat(kin.R[i]),
@@ -160,16 +161,6 @@ def test_a_joint_of_six_dofs_gathers_its_childrens_blocks():
                 assert np.abs(Phi - gathered).max() > 1e-6 * np.abs(Phi).max()
             checked += 1
         assert checked >= 1
-
-
-def _bodies_of(tree, node):
-    nb = tree.model.nb
-    if node < 0:
-        return set()
-    if node < nb:
-        return {node}
-    i = node - nb
-    return _bodies_of(tree, tree.left[i]) | _bodies_of(tree, tree.right[i])
 
 
 def _submodel(model, bodies):

@@ -4,6 +4,7 @@ projected areas, the bounding volumes and the tree sums; these tests really rend
 import numpy as np
 import pytest
 import trimesh
+from strategies import moved_pixels, node_bodies
 from test_projection import BOXES, SPHERES
 
 import vdad
@@ -90,16 +91,6 @@ def test_bounding_volume_area_bounds_rendered_count(volume):
     assert 1.0 < ratio < {"sphere": 6.0, "obb": 2.0, "aabb": 6.0}[volume]
 
 
-def _bodies_below(tree, node):
-    nb = tree.model.nb
-    if node < 0:                                          # the ground
-        return []
-    if node < nb:
-        return [node]
-    i = node - nb
-    return _bodies_below(tree, tree.left[i]) + _bodies_below(tree, tree.right[i])
-
-
 def test_node_count_is_sum_of_its_bodies_and_wall_hides():
     scene = pendulum(n_bodies=16, axes="alternate")
     sim = scene.simulator()
@@ -109,7 +100,10 @@ def test_node_count_is_sum_of_its_bodies_and_wall_hides():
     counts = PixelCounter(scene.model).counts(camera, R, p)
     N = RenderedCounts(sim.tree, camera, method="merged")(0.0, sim.q)
     for node in range(sim.tree.n_nodes):
-        assert N[node] == counts[_bodies_below(sim.tree, node)].sum()
+        assert N[node] == counts[node_bodies(sim.tree, node)].sum()
+    moved = RenderedCounts(sim.tree, camera, method="merged", pixels="moved")(0.0, sim.q)
+    np.testing.assert_array_equal(moved, moved_pixels(sim.tree, counts.astype(float)))
+    assert moved[sim.tree.n_nodes - 1] == counts.sum()       # the pivot moves every body
     # a wall between the camera and the chain's lower half hides those bodies
     z_mid = -0.6
     screen = wall((-3.0, -0.5), (3.0, -0.5), height=3.0, base=z_mid - 3.0)

@@ -2,15 +2,19 @@
 volumes equal a full evaluation, node values are sums over bodies, and the methods
 rigidify what the viewer cannot see and approach the full DCA in full view."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+from strategies import moved_pixels, node_bodies, random_configuration, random_tree
 
-from vdad import Body, Model, Simulator
+from vdad import Body, Geom, Model, Simulator
+from vdad.assembly import AssemblyTree
 from vdad.bounding import areas, body_volumes, place
 from vdad.camera import Camera
 from vdad.errors import InputError, SimulationError
 from vdad.scenes import pendulum
-from vdad.visibility import BoundingVolumes, sum_up
+from vdad.visibility import BoundingVolumes
 
 
 @pytest.mark.parametrize("volume", ["sphere", "obb"])
@@ -43,13 +47,52 @@ def test_node_coverage_sums_bodies(volume):
     N = cov(0.0, sim.q)
     per_body = areas(place(body_volumes(scene.model, volume), *sim.body_poses()), scene.camera)
     assert np.all(per_body > 0)
-    np.testing.assert_allclose(N, sum_up(sim.tree, per_body))
+    sums = [per_body[node_bodies(sim.tree, n)].sum() for n in range(sim.tree.n_nodes)]
+    np.testing.assert_allclose(N, sums + [0.0])
     # every node holds a contiguous set of bodies: the root holds them all
     assert N[sim.tree.n_nodes - 1] == pytest.approx(per_body.sum())
     N_min = BoundingVolumes(sim.tree, scene.camera, volume, estimate="min")(0.0, sim.q)
     N_node = BoundingVolumes(sim.tree, scene.camera, volume, estimate="node")(0.0, sim.q)
     np.testing.assert_array_equal(N_min, np.fmin(N_node, N))
     np.testing.assert_allclose(N_node[:scene.model.nb], per_body)      # leaves: the bodies
+
+
+@pytest.mark.parametrize("seed", [3, 6])          # each has a joint whose rest is smaller
+def test_moved_pixels_weight_a_node_by_the_bodies_its_joints_displace(seed):
+    """pixels="moved" equals the brute-force rule from body sets: a joint moves its
+    successor's subtree, or the smaller side inside a floating tree."""
+    model = random_tree(seed, n=14, roots=2, springs=False)     # a floating and a fixed tree
+    bodies = [replace(b, geoms=(Geom("sphere", (0.05 + 0.02 * i,)),))
+              for i, b in enumerate(model.bodies)]
+    model = Model(bodies, model.joints, name=model.name)
+    tree = AssemblyTree.balanced(model)
+    q = random_configuration(model, np.random.default_rng(seed))
+    camera = Camera(position=(0.0, -12.0, 2.0), target=(0.0, 0.0, 0.0), yfov=1.2)
+    per_body = BoundingVolumes(tree, camera, estimate="bodies")(0.0, q)[:model.nb]
+    assert np.all(per_body > 0)
+    N = BoundingVolumes(tree, camera, pixels="moved")(0.0, q)
+    np.testing.assert_allclose(N, moved_pixels(tree, per_body), rtol=1e-12)
+    # the floating tree's smaller sides matter: successor subtrees alone differ
+    assert not np.allclose(N, moved_pixels(tree, per_body, floating=False))
+
+
+def test_moved_pixels_in_an_adaptive_region_equal_a_full_evaluation():
+    """view-bvh with pixels="moved": the N_M the adaptive region uses is the full
+    evaluation's at the same configuration, and the top node takes every body."""
+    scene = pendulum(n_bodies=24, axes="alternate", angle=1.0)
+    sim = scene.simulator(method="view-bvh", pixels="moved", threshold=1e-3, coverage_every=1)
+    assert sim.options["pixels"] == "moved" and sim.adaptive.coverage.pixels == "moved"
+    full = BoundingVolumes(sim.tree, scene.camera, pixels="moved")
+    rigid = 0
+    for step in range(100):
+        t, q = sim.t, sim.q.copy()
+        sim.step()
+        rigid += len(sim.adaptive.front) > 2
+        if step % 10 == 9:
+            N = full(t, q)
+            np.testing.assert_allclose(sim.adaptive.N_M, N, rtol=1e-9)
+            assert N[sim.tree.n_nodes - 1] == pytest.approx(N[:scene.model.nb].sum())
+    assert rigid > 0                                 # the region was really pruned
 
 
 def _run(scene, camera, threshold, steps=300, **options):

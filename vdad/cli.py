@@ -68,7 +68,7 @@ def _scene_options(parser):
 # the method options that make_simulator gives Scene.simulator when set: each is the
 # keyword of the CLI option of the same name (--coverage-every: coverage_every)
 SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "drop", "dwell", "kappa", "volume",
-                     "estimate", "counting", "coverage_every", "distance", "sleep_speed",
+                     "estimate", "pixels", "counting", "coverage_every", "distance", "sleep_speed",
                      "sleep_time")
 
 
@@ -98,7 +98,7 @@ def _method_options(parser):
     from .bounding import VOLUMES
     from .integrators import INTEGRATORS
     from .simulator import ADAPTIVE_DEFAULTS, DEFAULTS, FRAME_RATE, METHODS
-    from .visibility import ESTIMATES
+    from .visibility import ESTIMATES, PIXELS
 
     def default(name, method=None):
         value = DEFAULTS[method][name] if method else ADAPTIVE_DEFAULTS[name]
@@ -150,6 +150,10 @@ def _method_options(parser):
                       help="view-bvh coverage: min of the node's and its bodies' areas "
                       "(eq. 7), the node's (eq. 5) or the bodies' (eq. 6) (default "
                       f"{default('estimate', 'view-bvh')})")
+    view.add_argument("--pixels", choices=PIXELS,
+                      help="whose pixels weight a node's joints: its own bodies' (the "
+                      "paper's) or those of the bodies its joints move (docs/visibility.md) "
+                      f"(default {default('pixels', 'view-bvh')})")
     view.add_argument("--counting", choices=("queries", "merged"),
                       help="view-oq counts: occlusion queries (the paper's) or one merged "
                       "id buffer (same counts, faster) (default "

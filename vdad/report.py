@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .reproduce import FAMILIES, PAPER, TRACE, family, parameter
+from .reproduce import CURVES, FAMILIES, PAPER, TRACE, curve, family, parameter
 
 MEASURES = (("mean_px", "mean screen displacement (px)"),
             ("differing_pixels", "differing pixels per frame"))
@@ -170,15 +170,16 @@ def write_table1(rows, out):
 # --- Figures 8 and 9 -------------------------------------------------------------------
 
 def _sweep_figure(rows, out, name, x_of, xlabel, title):
-    """Active joints and time per step against ``x_of(config)`` per view method."""
+    """Active joints, time per step and measured mean screen error against
+    ``x_of(config)`` per view method and pixels rule (:data:`CURVES`)."""
     plt = _pyplot()
     dca = [r for r in rows if r["config"]["method"] == "dca"]
     header = ["method", xlabel, "active joints", "node visits", "ms/step", "DCA ms/step",
               "speed-up", "mean px error", "differing px/frame", "failure"]
     table = []
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for m in ("view-bvh", "view-oq"):
-        mine = sorted((r for r in rows if r["config"]["method"] == m),
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    for m in CURVES:
+        mine = sorted((r for r in rows if curve(r["config"]) == m),
                       key=lambda r: x_of(r["config"]))
         for r in mine:
             table.append([m, x_of(r["config"]), r["active_joints"], r["node_visits"],
@@ -186,11 +187,12 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
                           _err(r, "differing_pixels"), _failed(r)])
         ok = [r for r in mine if not r["failure"]]
         bad = [r for r in mine if r["failure"]]
-        for ax, key in zip(axes, ("active_joints", "ms_per_step"), strict=True):
-            line, = ax.plot([x_of(r["config"]) for r in ok], [r[key] for r in ok], "o-",
+        for ax, key in zip(axes, ("active_joints", "ms_per_step", None), strict=True):
+            value = _err if key is None else (lambda r, key=key: r[key])
+            line, = ax.plot([x_of(r["config"]) for r in ok], [value(r) for r in ok], "o-",
                             label=m)
             if bad:
-                ax.plot([x_of(r["config"]) for r in bad], [r[key] for r in bad], "x",
+                ax.plot([x_of(r["config"]) for r in bad], [value(r) for r in bad], "x",
                         color=line.get_color(), label=f"{m} (diverged)")
     joints = max([r["joints"] or 1 for r in rows] + [1])
     axes[0].axhline(joints, color="k", ls="--", lw=1, label="all joints")
@@ -207,8 +209,10 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
     # lines (all joints, the DCA) would squeeze linear curves into a tenth
     _readable(axes[0], ("log", xs), ("symlog", [1.0, joints]))   # from no joint to all
     _readable(axes[1], ("log", xs), ("log",))
-    for ax, ylabel in zip(axes, ("active joints (0, then log)", "ms per step (log)"),
-                          strict=True):
+    errors = [_err(r) for r in rows if r["config"]["method"] != "dca"]
+    _readable(axes[2], ("log", xs), ("symlog", [e for e in errors if e is not None]))
+    for ax, ylabel in zip(axes, ("active joints (0, then log)", "ms per step (log)",
+                                 "mean screen error, px (0, then log)"), strict=True):
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.legend(fontsize=8)

@@ -29,7 +29,8 @@ EXPERIMENTS = ("table1", "figure8", "figure9", "dogs", "speed_vs_error")
 # seen at 640 x 480, so that links cover pixels when all 300 are in view
 PENDULUM300 = {"n_bodies": 300, "radius": 0.05, "resolution": [640, 480]}
 FAMILIES = ("adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb", "view-oq",
-            "lod-distance", "sleeping")
+            "view-bvh sphere moved", "view-oq moved", "lod-distance", "sleeping")
+CURVES = ("view-bvh", "view-oq", "view-bvh moved", "view-oq moved")   # of Figures 8 and 9
 TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
 
 
@@ -76,7 +77,8 @@ def _view(method, threshold, **extra):
 
 
 def _family_configs(scene, args, steps, every, values):
-    """One run per value of every method family of the speed study, and the DCA."""
+    """One run per value of every method family of the speed study, and the DCA
+    (the moved-pixels rule at thresholds of its own: its weights are larger)."""
     out = [_config(scene, args, "dca", {}, steps, every)]
     for t in values["adaptive"]:
         out.append(_config(scene, args, "adaptive", {"threshold": t}, steps, every))
@@ -86,6 +88,9 @@ def _family_configs(scene, args, steps, every, values):
                                steps, every))
     for t in values["view"]:
         out.append(_config(scene, args, "view-oq", _view("view-oq", t), steps, every))
+    for m in ("view-bvh", "view-oq"):
+        for t in values["moved"]:
+            out.append(_config(scene, args, m, _view(m, t, pixels="moved"), steps, every))
     for d in values["distance"]:
         out.append(_config(scene, args, "lod-distance", {"distance": d}, steps, every))
     for s in values["sleep"]:
@@ -111,41 +116,51 @@ def plan(quick=False) -> dict:
         _config("pendulum", PENDULUM300, m, _view(m, t), p_steps, p_every)
         for m in ("view-bvh", "view-oq") for t in thresholds]
     distances = [33.0, 120.0, 480.0] if q else [15.0, 33.0, 60.0, 120.0, 240.0, 480.0]
-    figure9 = [_config("pendulum", {**PENDULUM300, "camera_distance": d}, m, _view(m, 1e-5),
-                       p_steps, p_every) for m in ("view-bvh", "view-oq") for d in distances]
+    figure9 = [_config("pendulum", {**PENDULUM300, "camera_distance": d}, m,
+                       _view(m, 1e-5, pixels=pixels), p_steps, p_every)
+               for pixels in ("own", "moved") for m in ("view-bvh", "view-oq") for d in distances]
     d_steps = 30 if q else 300
     dogs = [_config("hanging_dogs", {}, "dca", {}, d_steps, 10)] + [
         _config("hanging_dogs", {}, m, _view(m, 0.01), d_steps, 10)
         for m in ("view-bvh", "view-oq")]
     if q:
         sve = (_family_configs("pendulum", PENDULUM300, p_steps, p_every, {
-                   "adaptive": [1e-5, 1e-2], "view": [1e-3], "distance": [30.0],
-                   "sleep": [0.5]})
+                   "adaptive": [1e-5, 1e-2], "view": [1e-3], "moved": [1e-1],
+                   "distance": [30.0], "sleep": [0.5]})
                + _family_configs("hanging_dogs", {"n_dogs": 16, "columns": 4}, 40, 10, {
-                   "adaptive": [1e-5, 1e-2], "view": [1e-2], "distance": [3.5],
-                   "sleep": [0.5]})
+                   "adaptive": [1e-5, 1e-2], "view": [1e-2], "moved": [1e-2],
+                   "distance": [3.5], "sleep": [0.5]})
                + _family_configs("falling_character", {}, 300, 25, {
-                   "adaptive": [1e-6, 1e-3], "view": [3e-3], "distance": [4.0],
-                   "sleep": [0.2]}))
+                   "adaptive": [1e-6, 1e-3], "view": [3e-3], "moved": [3e-3],
+                   "distance": [4.0], "sleep": [0.2]}))
     else:
         sve = (_family_configs("pendulum", PENDULUM300, p_steps, p_every, {
                    "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-5, 1e-3, 1e-1],
-                   "distance": [30.0, 50.0], "sleep": [0.05, 0.5, 2.0]})
+                   "moved": [1e-3, 1e-1, 1.0], "distance": [30.0, 50.0], "sleep": [0.05, 0.5, 2.0]})
                + _family_configs("hanging_dogs", {}, 200, 10, {
                    "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-3, 1e-2, 1e-1],
-                   "distance": [3.5, 4.5, 6.0], "sleep": [0.05, 0.5, 2.0]})
+                   "moved": [1e-3, 1e-2, 1e-1], "distance": [3.5, 4.5, 6.0],
+                   "sleep": [0.05, 0.5, 2.0]})
                + _family_configs("falling_character", {}, 2500, 25, {
                    "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-3, 3e-3, 1e-2],
-                   "distance": [4.0, 6.0, 8.0], "sleep": [0.05, 0.2, 1.0]}))
+                   "moved": [1e-3, 3e-3, 1e-2], "distance": [4.0, 6.0, 8.0],
+                   "sleep": [0.05, 0.2, 1.0]}))
     return {"table1": table1, "figure8": figure8, "figure9": figure9, "dogs": dogs,
             "speed_vs_error": sve}
+
+
+def curve(config) -> str:
+    """The method of a configuration, with " moved" under the moved-pixels rule."""
+    moved = config["options"].get("pixels") == "moved"
+    return config["method"] + (" moved" if moved else "")
 
 
 def family(config) -> str:
     """The method family of a configuration in the speed study's legend."""
     if config["method"] == "view-bvh":
-        return f"view-bvh {config['options'].get('volume', 'sphere')}"
-    return config["method"]
+        volume = config["options"].get("volume", "sphere")
+        return curve({**config, "method": f"view-bvh {volume}"})
+    return curve(config)
 
 
 def parameter(config):

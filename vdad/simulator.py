@@ -32,8 +32,8 @@ from .kinematics import plan, world_poses
 from .model import body_indices, check_configuration, check_model
 
 METHODS = ("dca", "adaptive", "view-bvh", "view-oq", "lod-distance", "sleeping")
-METHOD_OPTIONS = {"view-bvh": ("volume", "estimate", "resolution"),
-                  "view-oq": ("counting", "resolution"),
+METHOD_OPTIONS = {"view-bvh": ("volume", "estimate", "pixels", "resolution"),
+                  "view-oq": ("counting", "pixels", "resolution"),
                   "lod-distance": ("distance",),
                   "sleeping": ("sleep_speed", "sleep_time")}
 BASELINES = ("lod-distance", "sleeping")
@@ -89,8 +89,9 @@ def lod_distance(model, q, camera, pixels=LOD_PIXELS):
 # (Scene.defaults) come first.
 DEFAULTS = {"adaptive": {"threshold": 1e-6},
             "view-bvh": {"threshold": 1e-6, "volume": "sphere", "estimate": "min",
-                         "coverage_every": frame_steps},
-            "view-oq": {"threshold": 1e-6, "counting": "queries", "coverage_every": frame_steps},
+                         "pixels": "own", "coverage_every": frame_steps},
+            "view-oq": {"threshold": 1e-6, "counting": "queries", "pixels": "own",
+                        "coverage_every": frame_steps},
             "lod-distance": {"distance": lod_distance},
             "sleeping": {"sleep_speed": 0.05, "sleep_time": 0.5}}
 
@@ -187,7 +188,9 @@ class Simulator:
     :class:`~vdad.visibility.BoundingVolumes`) and ``"view-oq"`` from rendered
     pixel counts with the ``environment`` as occluder (option ``counting`` =
     ``"queries"`` or ``"merged"``; :class:`~vdad.visibility.RenderedCounts`,
-    needs EGL). Both take ``resolution`` = (width, height) of the counting
+    needs EGL). Both take ``pixels`` = ``"own"`` (the paper's: a node weighted
+    by its own bodies' pixels) or ``"moved"`` (by the pixels its joints displace,
+    ``docs/visibility.md``), ``resolution`` = (width, height) of the counting
     (default: the camera's) and ``coverage_every`` (steps between evaluations;
     default :func:`frame_steps`, once per displayed frame).
     Two game-engine baselines (:mod:`vdad.baselines`, on adaptive dynamics with
@@ -252,7 +255,7 @@ class Simulator:
 
                 adaptive_options["coverage"] = RenderedCounts(
                     self.tree, camera, environment, method=view.get("counting", "queries"),
-                    resolution=view.get("resolution"))
+                    resolution=view.get("resolution"), pixels=view.get("pixels", "own"))
             elif method == "lod-distance":
                 adaptive_options["coverage"] = DistanceLOD(self.tree, camera, **view)
             elif method == "sleeping":

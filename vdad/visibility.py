@@ -11,6 +11,11 @@ counting resolution, for the camera of the path at time ``t``:
   environment and every body as occluders (:mod:`vdad.render.counting`, by
   occlusion queries or the merged id buffer), summed up the tree.
 
+Both take the rule ``pixels``: ``"own"`` (Kim 2008 §5.2: a node is weighted by
+the pixels of its own bodies) or ``"moved"`` (``docs/visibility.md``, "Pixels a
+joint moves": by the pixels of the bodies its joints displace,
+:func:`moved_pass`).
+
 ``adaptive`` is the :class:`~vdad.adaptive.AdaptiveDynamics` whose region is
 being simulated, or None for a full evaluation at configuration ``q``. With
 adaptive dynamics only the active nodes and the front need ``N_M``: for spheres
@@ -42,6 +47,7 @@ from .projection import box_scratch, view_of
 
 ESTIMATES = ("min", "node", "bodies")
 MIN, NODE, BODIES = 0, 1, 2                      # codes of ESTIMATES for the kernels
+PIXELS = ("own", "moved")                        # whose pixels weight a node's joints
 
 
 def _ids(nodes):
@@ -65,14 +71,31 @@ def sum_up_pass(nb, left, right, N):
         N[nb + m] = N[child_slot(left[m], n_nodes)] + N[child_slot(right[m], n_nodes)]
 
 
-def sum_up(tree, per_body):
-    """Node totals (n_nodes + 1,) of ``per_body`` (nb,) values: each node the sum
-    of its bodies' (the last entry, the ground, 0)."""
-    N = np.zeros(tree.n_nodes + 1)
-    N[:tree.model.nb] = per_body
-    left, right = tree.arrays[0], tree.arrays[1]
-    sum_up_pass(tree.model.nb, left, right, N)
-    return N
+@pass_kernel
+def moved_pass(nb, parent, root, floating, left, right, joint, S, N):
+    """``docs/visibility.md``, pixels a joint moves (eqs. (V1)-(V2)): from each
+    body's pixels in ``N[:nb]``, each internal node's ``N`` the largest, over the
+    joints of its subtree, of the pixels of the bodies the joint displaces: its
+    successor's subtree in the kinematic tree (``parent`` (nb,), topological
+    order), or the smaller of its two sides for a joint inside a ``floating``
+    articulated body (flags per ``root`` body). ``S`` (nb,): scratch subtree sums."""
+    n_nodes = nb + left.shape[0]
+    for b in range(nb):
+        S[b] = N[b]
+    for b in range(nb - 1, -1, -1):              # children after their parents
+        if parent[b] >= 0:
+            S[parent[b]] += S[b]
+    N[n_nodes] = 0.0
+    for m in range(left.shape[0]):               # post-order: children first
+        j, A, B = joint[m], left[m], right[m]
+        w = S[j]
+        if floating[root[j]] and j != root[j]:
+            w = min(w, max(S[root[j]] - w, 0.0))
+        if A >= nb:
+            w = max(w, N[A])
+        if B >= nb:
+            w = max(w, N[B])
+        N[nb + m] = w
 
 
 @inlined
@@ -173,18 +196,38 @@ def refresh_local(kind, nb, left, right, first, stale, rel_R, rel_p, since, stam
 
 
 class _Coverage:
-    """A camera path and the counting resolution (default: the camera's own)."""
+    """A camera path, the counting resolution (default: the camera's own) and the
+    rule ``pixels`` that turns the bodies' pixels into the nodes' (:data:`PIXELS`)."""
 
-    def __init__(self, tree, camera, resolution=None):
+    def __init__(self, tree, camera, resolution=None, pixels="own"):
         self.tree, self.model = tree, tree.model
         if not any(body.geoms for body in self.model.bodies):
             raise InputError(f"view-dependent coverage needs geometry, but no body of model "
                              f"{self.model.name!r} has any (Body(..., geoms=(Geom(...),))): "
                              f"every joint would be frozen; use method='adaptive' instead")
+        if pixels not in PIXELS:
+            raise InputError(f"unknown pixels rule {pixels!r}; choose one of {PIXELS}")
         self.path = check_path(camera)
         self.resolution = check_resolution(resolution)
+        self.pixels = pixels
         self._last = (None, None)                        # a path's camera, at resolution
         self._kin = Kinematics.empty(plan(self.model))
+        model = self.model
+        root = plan(model).root_of                       # root body of each body's tree
+        self._moved = (_ids(model.parent), _ids(root),
+                       (model.parent[root] < 0) & (model.nv_joint[root] == 6),
+                       tree.arrays[0], tree.arrays[1], tree.arrays[2], np.empty(model.nb))
+
+    def node_pixels(self, N):
+        """Each node's ``N`` (n_nodes + 1,) from its bodies' pixels in ``N[:nb]``,
+        in place, by the rule :attr:`pixels`: the sum over its bodies
+        (:func:`sum_up_pass`) or the pixels its joints move (:func:`moved_pass`)."""
+        parent, root, floating, left, right, joint, S = self._moved
+        if self.pixels == "moved":
+            moved_pass(self.model.nb, parent, root, floating, left, right, joint, S, N)
+        else:
+            sum_up_pass(self.model.nb, left, right, N)
+        return N
 
     def camera(self, t):
         """The camera at time ``t`` at the counting resolution (the last one again
@@ -208,12 +251,19 @@ class BoundingVolumes(_Coverage):
     ``"sphere"``, ``"obb"``, ``"aabb"``; ``estimate`` ``"min"`` (eq. 7),
     ``"node"`` (eq. 5, the node's own volume) or ``"bodies"`` (eq. 6, the sum
     over its bodies). Compiled per node (:func:`coverage_pass`,
-    :func:`region_coverage_pass`)."""
+    :func:`region_coverage_pass`). With ``pixels="moved"`` a body's pixels are
+    the area of its own volume (where eqs. 5-7 agree), moved up the tree by
+    :func:`moved_pass`; ``estimate="node"`` has no per-body meaning then."""
 
-    def __init__(self, tree, camera, volume="sphere", estimate="min", resolution=None):
-        super().__init__(tree, camera, resolution)
+    def __init__(self, tree, camera, volume="sphere", estimate="min", resolution=None,
+                 pixels="own"):
+        super().__init__(tree, camera, resolution, pixels)
         if estimate not in ESTIMATES:
             raise InputError(f"unknown coverage estimate {estimate!r}; choose one of {ESTIMATES}")
+        if pixels == "moved" and estimate == "node":
+            raise InputError("estimate='node' (the node's own volume, eq. 5) does not apply to "
+                             "pixels='moved', which sums the bodies' own volumes (eq. 6): give "
+                             "estimate='min' or 'bodies', or pixels='own'")
         self.kind, self.estimate = check_volume(volume), estimate
         self._kind, self._estimate = KIND_CODE[volume], ESTIMATES.index(estimate)
         nb, n = self.model.nb, tree.n_nodes
@@ -240,6 +290,12 @@ class BoundingVolumes(_Coverage):
         cam = self.camera(t)
         view, (Rc, pc) = view_of(cam), camera_pose(cam)
         nb, N = self.model.nb, np.empty(self.tree.n_nodes + 1)
+        if self.pixels == "moved":
+            R, p = self.poses(q, adaptive)
+            coverage_pass(self._kind, BODIES, view, Rc, pc, nb, self._left, self._right,
+                          self.body, as_input(R), as_input(p), self.world, self._N1, N,
+                          *self._scratch)
+            return self.node_pixels(N)
         if adaptive is None or self.kind == "aabb" or self.estimate == "bodies":
             R, p = self.poses(q, adaptive)
             coverage_pass(self._kind, self._estimate, view, Rc, pc, nb, self._left,
@@ -283,8 +339,9 @@ class RenderedCounts(_Coverage):
     draw of a merged buffer into an id image; the same counts, faster for many
     bodies). Fails at once with :class:`~vdad.errors.RenderError` without EGL."""
 
-    def __init__(self, tree, camera, environment=None, method="queries", resolution=None):
-        super().__init__(tree, camera, resolution)
+    def __init__(self, tree, camera, environment=None, method="queries", resolution=None,
+                 pixels="own"):
+        super().__init__(tree, camera, resolution, pixels)
         from .render.counting import PixelCounter
 
         start = camera_at(camera, 0.0)
@@ -293,5 +350,6 @@ class RenderedCounts(_Coverage):
         self.resolution = (w, h)
 
     def __call__(self, t, q, adaptive=None):
-        counts = self.counter.counts(self.camera(t), *self.poses(q, adaptive))
-        return sum_up(self.tree, counts)
+        N = np.zeros(self.tree.n_nodes + 1)
+        N[:self.model.nb] = self.counter.counts(self.camera(t), *self.poses(q, adaptive))
+        return self.node_pixels(N)
