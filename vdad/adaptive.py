@@ -51,6 +51,7 @@ from .checks import (
 from .dca import body_arrays, make_data
 from .dynamics import default_tree
 from .errors import InputError
+from .forces import body_forces
 from .hybrid import RigidGroups
 from .integrators import rk4
 from .kinematics import Kinematics, plan
@@ -251,6 +252,11 @@ class AdaptiveDynamics:
         self.data = make_data(tree)
         self.kin = self.data.kin
         self._pose_kin = Kinematics.empty(plan(model))
+        # the step's force sources (controller, external, compiled tables) and the
+        # work arrays of the compiled ones (every body's kinematics and states)
+        self._sources = (None, None, None)
+        self._force_work = (Kinematics.empty(plan(model)), np.empty((2, nb, 3)),
+                            np.empty((nb, 6)), np.empty(model.nv))
         self._roots = np.flatnonzero(tree.up == -1).astype(np.int64)
         self._top = np.asarray(tree.top, np.int64)
         self._stack = np.zeros((3, n + 2), np.int64)
@@ -429,7 +435,18 @@ class AdaptiveDynamics:
             joint = self.model.joint_names[self.model.dof_joint[bad[0]]] if len(bad) else "?"
             raise InputError(f"the accelerations became non-finite at joint {joint!r}")
 
-    def _forces(self, t, q, qd, controller, external):
+    def _forces(self, t, q, qd, k):
+        """``tau``, ``f_ext`` (None: zero) of the step's sources at evaluation ``k``
+        of the step (RK4: 0-3): the compiled tables (:func:`vdad.forces.body_forces`)
+        if given, else the Python callables."""
+        controller, external, tables = self._sources
+        if tables is not None:
+            F, e = tables
+            kin, states, f_ext, tau = self._force_work
+            with compiling(body_forces):
+                body_forces(plan(self.model).arrays, F, e + k, t, q, qd, kin.arrays, states,
+                            f_ext, tau)
+            return tau, f_ext
         tau = f_ext = None
         if controller is not None:
             tau = np.array(check_vector("controller(t, q, qd)", controller(t, q, qd),
@@ -438,17 +455,22 @@ class AdaptiveDynamics:
             f_ext = check_wrenches(self.model, external(t, q, qd), "external(t, q, qd)")
         return tau, f_ext
 
-    def step(self, t, q, qd, integrate, controller=None, external=None):
+    def step(self, t, q, qd, integrate, controller=None, external=None, tables=None):
         """Advance ``(q, qd)`` (full vectors, updated in place) by one step of
         ``integrate`` (:func:`vdad.integrators.semi_implicit_euler` or
         :func:`vdad.integrators.rk4`, on the active joints): :meth:`advance`, then
         :meth:`update`. Returns the step's :class:`StepStats`."""
-        self.advance(t, q, qd, integrate, controller, external)
+        self.advance(t, q, qd, integrate, controller, external, tables)
         return self.update(q, qd)
 
-    def advance(self, t, q, qd, integrate, controller=None, external=None):
+    def advance(self, t, q, qd, integrate, controller=None, external=None, tables=None):
         """The dynamics and integration of a step, in place, on the current region
-        (the coverage first, if due); the region update is :meth:`update`."""
+        (the coverage first, if due); the region update is :meth:`update`. Forces
+        from the Python callables ``controller`` and ``external``, or, in their
+        place, from ``tables`` = ``(F, e)``: the arrays of
+        :meth:`vdad.forces.ForceTables.arrays` and the index of the step's first
+        evaluation in them (RK4 evaluates ``e`` to ``e + 3``)."""
+        self._sources = (controller, external, tables)
         r = self.region
         self.stats = st = StepStats(active_joints=int(r.counts[N_JOINTS]),
                                     front=int(r.counts[FRONT]))
@@ -460,7 +482,7 @@ class AdaptiveDynamics:
             st.times["visibility"] = time.perf_counter() - t0
         js, bodies = plan(self.model).arrays, body_arrays(self.model)
         qdd = self.data.qdd
-        self._stage(st, True, t, q, qd, controller, external)       # the step's decisions
+        self._stage(st, True, t, q, qd)                              # the step's decisions
         if self.drop == "lock" and r.counts[ACCELERATED] < r.counts[ASSEMBLED]:
             t0 = time.perf_counter()
             with compiling(lock_pruned):
@@ -468,7 +490,7 @@ class AdaptiveDynamics:
             st.rigidified += self._change(nc, 0, self.step_count + 1, q, qd)[0]
             st.times["region"] += time.perf_counter() - t0
             st.active_joints, st.front = int(r.counts[N_JOINTS]), int(r.counts[FRONT])
-            self._stage(st, False, t, q, qd, controller, external)
+            self._stage(st, False, t, q, qd)
         t0, inner = time.perf_counter(), st.times["forces"] + st.times["dynamics"]
         if integrate is rk4:
             qs, vs = q.copy(), qd.copy()
@@ -477,7 +499,7 @@ class AdaptiveDynamics:
                            qs, vs)
                 if k > 0:
                     h = self.dt if k == 3 else self.dt / 2
-                    self._stage(st, False, t + h, qs, vs, controller, external)
+                    self._stage(st, False, t + h, qs, vs, k)
             rk4_active(4, self.dt, js, bodies, r.arrays, q, qd, qdd, self._kq, self._kv, qs, vs)
         else:
             euler_active(self.dt, js, bodies, r.arrays, q, qd, qdd)
@@ -527,10 +549,10 @@ class AdaptiveDynamics:
         self._stale_coverage = True
         return int(r.counts[RIGIDIFIED]), int(r.counts[RELEASED])
 
-    def _stage(self, st, first, t, q, qd, controller, external):
-        """One evaluation of a step: forces (Python callables), then the passes."""
+    def _stage(self, st, first, t, q, qd, k=0):
+        """Evaluation ``k`` of a step: forces (:meth:`_forces`), then the passes."""
         t0 = time.perf_counter()
-        tau, f_ext = self._forces(t, q, qd, controller, external)
+        tau, f_ext = self._forces(t, q, qd, k)
         st.force_update += self.groups.update_forces(f_ext, self.active)
         t1 = time.perf_counter()
         st.times["forces"] += t1 - t0

@@ -27,7 +27,7 @@ import numpy as np
 from ._linalg import as_input, inlined, pass_kernel, quaternion_log
 from .checks import check_real, real_array, show
 from .errors import InputError, ModelError
-from .kinematics import Kinematics, joint_set, kinematics
+from .kinematics import Kinematics, joint_set, kinematics, kinematics_pass
 from .model import body_indices, check_model, whole_index
 from .spatial import cross3, mv, quat_log
 
@@ -797,6 +797,23 @@ def apply_forces(F, e, t, R, p, w, v, q, qd, f, tau):
                    w, v, f)
     pulse_torques(t, p_target, p_start, p_torque, p_duration, f)
     limit_torques(h_dof, h_q, low, high, h_k, h_c, b_q, b_v, angle, b_k, b_c, q, qd, tau)
+
+
+@pass_kernel
+def body_forces(js, F, e, t, q, qd, kin, states, f, tau):
+    """Every built-in element of the tables ``F`` at evaluation ``e`` and time ``t``
+    at ``(q, qd)``, into ``f`` (nb, 6) and ``tau`` (nv,), both zeroed first: every
+    body's state (kinematics with velocities into ``kin``, world-axes angular
+    and origin velocities into ``states`` (2, nb, 3)), then :func:`apply_forces`."""
+    kinematics_pass(js, q, qd, True, *kin)
+    R, p, v, w, vo = kin[5], kin[6], kin[7], states[0], states[1]
+    world_velocities(R, v, w, vo)
+    for i in range(f.shape[0]):
+        for r in range(6):
+            f[i, r] = 0.0
+    for i in range(tau.shape[0]):
+        tau[i] = 0.0
+    apply_forces(F, e, t, R, p, w, vo, q, qd, f, tau)
 
 
 ForceTables.BUILT_IN = (Springs, RandomTorques, Drag, FloorContact, JointLimits)

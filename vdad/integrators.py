@@ -16,8 +16,8 @@ import numpy as np
 from ._linalg import as_input, inlined, kernel, pass_kernel, quaternion_step
 from .dca import dynamics_pass
 from .errors import InputError
-from .forces import apply_forces, world_velocities
-from .kinematics import as_joint_set, kinematics_pass
+from .forces import body_forces
+from .kinematics import as_joint_set
 
 
 @inlined
@@ -160,15 +160,7 @@ def accelerations(js, tree, bodies, F, e, t, q, qd, kin, work, states, f_ext, ta
     (:class:`~vdad.forces.ForceTables`) at evaluation ``e``: kinematics, forces
     from every body's state (world axes, as :class:`~vdad.forces.BodyStates`), the
     DCA."""
-    kinematics_pass(js, q, qd, True, *kin)
-    R, p, v, w, vo = kin[5], kin[6], kin[7], states[0], states[1]
-    world_velocities(R, v, w, vo)
-    for i in range(R.shape[0]):
-        for r in range(6):
-            f_ext[i, r] = 0.0
-    for i in range(tau.shape[0]):
-        tau[i] = 0.0
-    apply_forces(F, e, t, R, p, w, vo, q, qd, f_ext, tau)
+    body_forces(js, F, e, t, q, qd, kin, states, f_ext, tau)
     dynamics_pass(js, tree, bodies, q, qd, tau, f_ext, kin, work)
     qdd = work[7]
     for i in range(out.shape[0]):

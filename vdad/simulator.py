@@ -293,22 +293,45 @@ class Simulator:
         return self._python_steps(n)
 
     def _python_steps(self, n):
-        for _ in range(n):
-            try:
-                if self.adaptive is None:
-                    q, qd = self._integrate(self.model, self.accelerations, self.t, self.q,
-                                            self.qd, self.dt)
-                else:
-                    q, qd = self.q.copy(), self.qd.copy()
-                    self.history.append(self.adaptive.step(self.t, q, qd, self._integrate,
-                                                           self.controller, self.external))
-            except InputError as exc:
-                raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): "
-                                      f"{exc}") from exc
-            self._check_step(q, qd)
-            self.q, self.qd = q, qd
-            self._advance(1)
+        """``n`` steps from Python: the DCA with Python forces, or adaptive dynamics,
+        whose built-in force elements are evaluated in compiled code from the
+        tables of each chunk of steps (:meth:`_tables_for`)."""
+        while n > 0:
+            m = min(n, self.CHUNK)
+            F = self._tables_for(m)
+            for k in range(m):
+                try:
+                    if self.adaptive is None:
+                        q, qd = self._integrate(self.model, self.accelerations, self.t, self.q,
+                                                self.qd, self.dt)
+                    else:
+                        q, qd = self.q.copy(), self.qd.copy()
+                        tables = None if F is None else (F, k * (4 if self._rk4 else 1))
+                        self.history.append(self.adaptive.step(
+                            self.t, q, qd, self._integrate, self.controller, self.external,
+                            tables))
+                except InputError as exc:
+                    raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): "
+                                          f"{exc}") from exc
+                self._check_step(q, qd)
+                self.q, self.qd = q, qd
+                self._advance(1)
+            n -= m
         return self
+
+    def _tables_for(self, m):
+        """With adaptive dynamics and forces of vdad's own elements only, their
+        :meth:`~vdad.forces.ForceTables.arrays` for the next ``m`` steps; else (or
+        where a moving anchor fails: its Python callable names the step) None."""
+        if self.adaptive is None or (self.controller is None and self.external is None):
+            return None
+        tables = self.force_tables()
+        if tables is None:
+            return None
+        try:
+            return tables.arrays(evaluation_times(self.step_count, m, self.dt, self._rk4))
+        except InputError:
+            return None
 
     CHUNK = 512          # compiled steps per call: bounds the time-dependent force tables
 
@@ -321,8 +344,12 @@ class Simulator:
             self._tables = (self.controller, self.external, tables)
         return tables
 
+    @property
+    def _rk4(self):
+        return self.integrator_name == "rk4"
+
     def _compiled_steps(self, n):
-        rk4 = self.integrator_name == "rk4"
+        rk4 = self._rk4
         q_new, qd_new = np.empty_like(self.q), np.empty_like(self.qd)
         q, qd = self.q.copy(), self.qd.copy()
         args = (plan(self.model).arrays, self.tree.arrays, dca.body_arrays(self.model),
