@@ -305,6 +305,64 @@ def test_adaptive_steps_evaluate_the_built_in_forces_in_compiled_code(name, inte
     assert np.abs(fast.qd).max() > 0.1
 
 
+@pytest.mark.parametrize("name, method, options", [
+    ("pendulum", "adaptive", {"threshold": 1e-4}),
+    ("pendulum", "adaptive", {"budget": 6, "drop": "coast", "policy": "zero"}),
+    ("pendulum", "view-bvh", {"pixels": "moved", "threshold": 1e-3}),
+    ("dog puppet", "view-bvh", {}),
+    ("hanging dogs", "adaptive", {"threshold": 1e-5, "metric": "coefficients"}),
+    ("falling character", "view-bvh", {"coverage_every": 5}),
+])
+def test_compiled_adaptive_steps_equal_the_python_steps(name, method, options):
+    """Adaptive steps by semi-implicit Euler run in compiled code
+    (AdaptiveDynamics.run, vdad.region.region_steps) where the forces allow: the
+    same states, to the last bit, and the same counters at every step as one
+    Python-level step at a time, with coverage evaluated as often."""
+    import dataclasses
+
+    runs = []
+    for loop in (True, False):
+        sim = SCENES[name]().simulator(method=method, **options)
+        sim.adaptive_loop = loop
+        calls = []
+        if sim.adaptive.coverage is not None:
+            coverage = sim.adaptive.coverage
+            sim.adaptive.coverage = (lambda t, q, ad, calls=calls, coverage=coverage:
+                                     calls.append(t) or coverage(t, q, ad))
+        sim.step(300)
+        sim.step(400)
+        runs.append((sim, calls))
+    (fast, fast_calls), (slow, slow_calls) = runs
+    np.testing.assert_array_equal(fast.q, slow.q)
+    np.testing.assert_array_equal(fast.qd, slow.qd)
+    assert fast.t == slow.t and fast_calls == slow_calls
+    counters = [[{k: v for k, v in dataclasses.asdict(st).items() if k != "times"}
+                 for st in sim.history] for sim in (fast, slow)]
+    assert counters[0] == counters[1]
+    assert all(st.times["steps"] > 0 and st.times["dynamics"] == 0 for st in fast.history)
+    assert min(st.active_joints for st in fast.history) < fast.model.nb     # it pruned
+
+
+@pytest.mark.parametrize("loop", [True, False])
+def test_a_diverging_compiled_adaptive_run_stops_as_a_python_one(loop):
+    """The compiled loop stops at the step whose state fails the checks, with the
+    simulator at the state before it, as a Python-level step does."""
+    from vdad.errors import SimulationError
+
+    scene = pendulum(n_bodies=3)
+    sim = vdad.Simulator(scene.model, scene.q0, dt=1e-2, method="adaptive", threshold=0.0)
+    sim.adaptive_loop = loop
+    sim.step(3)
+    q, qd = sim.q.copy(), sim.qd.copy()
+    sim.qd = qd + np.array([0.0, 400.0, 0.0])
+    kept = sim.qd.copy()
+    with pytest.raises(SimulationError, match=r"step 4 \(t = 0.04 s\): joint 'joint0' turns"):
+        sim.step(10)
+    assert sim.step_count == 3
+    np.testing.assert_array_equal(sim.q, q)
+    np.testing.assert_array_equal(sim.qd, kept)
+
+
 @pytest.mark.parametrize("integrator", ["semi-implicit", "rk4"])
 def test_compiled_rk4_and_euler_steps_equal_the_python_steps(integrator):
     """The same on a random tree of every joint kind with springs, dampers and

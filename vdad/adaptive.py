@@ -51,7 +51,7 @@ from .checks import (
 from .dca import body_arrays, make_data
 from .dynamics import default_tree
 from .errors import InputError
-from .forces import body_forces
+from .forces import Forces, ForceTables, body_forces
 from .hybrid import RigidGroups
 from .integrators import rk4
 from .kinematics import Kinematics, plan
@@ -65,14 +65,16 @@ from .region import (
     RELEASED,
     RIGIDIFIED,
     SOLVED,
+    STEP_COUNTERS,
     RegionData,
     active_state_ok,
-    change_region,
+    change_now,
     euler_active,
     evaluate,
     lock_pruned,
     rebuild,
     region_poses,
+    region_steps,
     rk4_active,
     update_region,
 )
@@ -80,7 +82,7 @@ from .region import (
 POLICIES = ("momentum", "zero")
 DROPS = ("coast", "lock")
 METRICS = ("direct", "coefficients")
-PHASES = ("visibility", "forces", "dynamics", "integrate", "region")
+PHASES = ("visibility", "forces", "dynamics", "integrate", "region", "steps")
 
 
 @dataclass
@@ -92,8 +94,9 @@ class StepStats:
     back_substituted: nodes evaluated by the two passes; force_update: node
     visits carrying force changes up rigid regions; lookahead: front joints
     evaluated; rigidified / released: nodes that changed state; times: seconds
-    per phase (:data:`PHASES`; ``visibility``: the coverage ``N_M``; ``select``:
-    look-ahead and budget heap).
+    per phase (:data:`PHASES`; ``visibility``: the coverage ``N_M``; ``steps``:
+    the rest of a step run in compiled code, :meth:`AdaptiveDynamics.run`, whose
+    phases are not timed apart).
     """
 
     active_joints: int = 0
@@ -257,6 +260,11 @@ class AdaptiveDynamics:
         self._sources = (None, None, None)
         self._force_work = (Kinematics.empty(plan(model)), np.empty((2, nb, 3)),
                             np.empty((nb, 6)), np.empty(model.nv))
+        g = self.groups          # run(): the groups' force sums, state before a step,
+        self._run_work = ((g.f_ext, g.pending, g.mark, g.order, g.is_B),   # counters,
+                          (np.empty(model.nq), np.empty(model.nv)),       # no forces
+                          np.zeros((512, len(STEP_COUNTERS)), np.int64),
+                          ForceTables(Forces(model, [])).arrays(np.zeros(1)))
         self._roots = np.flatnonzero(tree.up == -1).astype(np.int64)
         self._top = np.asarray(tree.top, np.int64)
         self._stack = np.zeros((3, n + 2), np.int64)
@@ -431,9 +439,14 @@ class AdaptiveDynamics:
                           self.data.arrays,
                           self.region.arrays)
         if not ok:
-            bad = np.flatnonzero(~np.isfinite(self.data.qdd))
-            joint = self.model.joint_names[self.model.dof_joint[bad[0]]] if len(bad) else "?"
-            raise InputError(f"the accelerations became non-finite at joint {joint!r}")
+            raise self.not_finite()
+
+    def not_finite(self):
+        """The InputError of an evaluation whose ``qdd`` is not finite, naming the
+        first joint where it is not."""
+        bad = np.flatnonzero(~np.isfinite(self.data.qdd))
+        joint = self.model.joint_names[self.model.dof_joint[bad[0]]] if len(bad) else "?"
+        return InputError(f"the accelerations became non-finite at joint {joint!r}")
 
     def _forces(self, t, q, qd, k):
         """``tau``, ``f_ext`` (None: zero) of the step's sources at evaluation ``k``
@@ -528,24 +541,69 @@ class AdaptiveDynamics:
         st.times["region"] += time.perf_counter() - t0
         return st
 
+    def run(self, n, time0, q, qd, rotational, tables=None, history=None):
+        """Up to ``n`` steps of semi-implicit Euler in compiled code
+        (``vdad.region.region_steps``), ``q``, ``qd`` (full vectors) in place, the
+        first at simulator step ``time0`` (``t = time0 dt``): as many calls of
+        :meth:`step` and of the simulator's checks, with no Python between them.
+        The coverage, when it is due, is evaluated first; the call then stops
+        before the next evaluation is due (every ``coverage_every`` steps, and
+        after a step that changed the region). Forces: the built-in elements of
+        ``tables`` = ``(F, e0)`` (as :meth:`advance`; None: none). Appends each
+        step's :class:`StepStats` to ``history`` (a list). Returns ``(steps done,
+        status, q_last, qd_last)``: status 0, or 1 if the next step's
+        accelerations were not finite, 2 if its state failed the checks (``q``,
+        ``qd`` hold that state, ``q_last``, ``qd_last`` the one before; the step
+        counts as done for adaptive dynamics, as :meth:`step` would)."""
+        sums, last, counters, no_forces = self._run_work
+        F, e0 = (no_forces, 0) if tables is None else tables
+        options = (self.predictive, 0 if self.budget is None else self.budget, self.lookahead,
+                   self.drop == "lock", self.policy == "momentum", self.dwell, self.dt,
+                   self._keep, self.kappa, np.inf if self.threshold is None else self.threshold)
+        r, vis, m = self.region, 0.0, min(n, len(counters))
+        if self.coverage is not None:
+            if self._stale_coverage or self.step_count % self.coverage_every == 0:
+                t0 = time.perf_counter()
+                r.N_M[:] = self._checked_coverage(time0 * self.dt, q)
+                self._stale_coverage = False
+                vis = time.perf_counter() - t0
+            m = min(m, self.coverage_every - self.step_count % self.coverage_every)
+        t0 = time.perf_counter()
+        with compiling(region_steps):
+            done, status = region_steps(
+                m, self.step_count, time0, e0, self.coverage is not None, options,
+                self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots, sums,
+                tables is not None, F, (self._force_work[0].arrays, *self._force_work[1:]),
+                rotational, q, qd, self.kin.arrays, self.data.arrays, r.arrays, self._stack,
+                last, counters)
+        rows = done + (status == 2)
+        each = (time.perf_counter() - t0) / max(rows, 1)
+        for i in range(rows):
+            st = StepStats(**dict(zip(STEP_COUNTERS, map(int, counters[i]), strict=True)))
+            st.times["steps"] = each
+            if i == 0:
+                st.times["visibility"] = vis
+            if history is not None:
+                history.append(st)
+            self.stats = st
+        self.step_count += rows
+        if rows and counters[rows - 1, 7] + counters[rows - 1, 8]:
+            self._stale_coverage = True
+        self.groups.any_force = bool(np.any(self.groups.f_ext))
+        return done, status, last[0], last[1]
+
     def _change(self, nc, nr, step, q, qd):
         """Rigidify the ``nc`` candidates and release the ``nr`` front nodes that
-        ``update_region`` or ``lock_pruned`` left in the stack
-        (``vdad.region.change_region``), then, under the momentum policy, apply the
-        locking impulse to ``qd``. Returns (nodes rigidified, nodes released)."""
+        ``update_region`` or ``lock_pruned`` left in the stack, with the locking
+        impulse on ``qd`` under the momentum policy (``vdad.region.change_now``).
+        Returns (nodes rigidified, nodes released)."""
         if nc + nr == 0:
             return 0, 0
-        r, momentum = self.region, self.policy == "momentum"
-        with compiling(change_region):
-            change_region(nc, nr, step, momentum, self.model.nb, plan(self.model).arrays,
-                          self.tree.arrays, self.groups.arrays, self._top, self._roots, q, qd,
-                          self.kin.arrays, r.arrays, self._stack)
-        if nc and momentum:
-            with compiling(evaluate):
-                evaluate(False, self.predictive, 0, True, False, False, step, 0, self.dt, 0.0,
-                         1.0, self.model.nb,
-                         *self._args()[:4], self._top, self.groups.up, self._roots, q, qd, qd,
-                         self.kin.arrays, self.data.arrays, r.arrays)
+        r = self.region
+        with compiling(change_now):
+            change_now(nc, nr, step, self.policy == "momentum", self.predictive, self.dt,
+                       self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots,
+                       q, qd, self.kin.arrays, self.data.arrays, r.arrays, self._stack)
         self._stale_coverage = True
         return int(r.counts[RIGIDIFIED]), int(r.counts[RELEASED])
 

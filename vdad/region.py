@@ -26,7 +26,9 @@ pre-placement. Then one evaluation (:func:`evaluate`) is
 
 :func:`update_region` rigidifies and releases nodes after a step, freezing
 group data per node (:func:`vdad.hybrid.freeze_node`) and applying the
-momentum-conserving locking impulse with the same passes.
+momentum-conserving locking impulse with the same passes. :func:`region_steps`
+runs whole steps (forces, evaluations, integration, region changes, checks) in
+compiled code.
 """
 
 from __future__ import annotations
@@ -56,8 +58,9 @@ from .dca import (
     solve_node,
     spring_force,
 )
+from .forces import body_forces
 from .heaps import heap_pop, heap_push, sort_ascending
-from .hybrid import freeze_node
+from .hybrid import carry_forces, freeze_node
 from .integrators import normalize_stage, stage_nq, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
 
@@ -1007,3 +1010,108 @@ def region_poses(js, region, q, kin):
     """World poses of the active joints' child bodies at ``q`` (placements and
     poses only): the frames of the front groups."""
     active_kinematics(js, region, q, q, False, kin)
+
+
+#: columns of :func:`region_steps`' per-step counters (the StepStats fields)
+STEP_COUNTERS = ("active_joints", "front", "accelerated", "assembled", "back_substituted",
+                 "force_update", "lookahead", "rigidified", "released")
+
+
+@pass_kernel
+def change_now(nc, nr, step, momentum, predictive, dt, nb, js, tree, bodies, groups, top, up,
+               roots, q, qd, kin, work, region, stack):
+    """Rigidify the ``nc`` candidates and release the ``nr`` front nodes left in
+    ``stack`` (:func:`change_region`), then, under the momentum policy, apply the
+    locking impulse to ``qd`` (:func:`evaluate` with ``impulse``)."""
+    change_region(nc, nr, step, momentum, nb, js, tree, groups, top, roots, q, qd, kin, region,
+                  stack)
+    if nc and momentum:
+        evaluate(False, predictive, 0, True, False, False, step, 0, dt, 0.0, 1.0, nb, js, tree,
+                 bodies, groups, top, up, roots, q, qd, qd, kin, work, region)
+
+
+@pass_kernel
+def forces_now(use, F, e, t, js, q, qd, fkin, states, f_ext, tau, held, active, up, is_B,
+               groups, pending, mark, order):
+    """The built-in forces of the tables ``F`` at evaluation ``e`` (with ``use``;
+    else ``tau`` is zero and no wrench acts) and their changes carried up the
+    rigid groups (:func:`vdad.hybrid.carry_forces`). Returns its node visits."""
+    if not use:
+        for i in range(tau.shape[0]):
+            tau[i] = 0.0
+        return 0
+    body_forces(js, F, e, t, q, qd, fkin, states, f_ext, tau)
+    return carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order)
+
+
+@pass_kernel
+def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies, groups,
+                 top, up, roots, sums, use_forces, F, force_work, rotational, q, qd, kin, work,
+                 region, stack, last, counters):
+    """Up to ``n`` adaptive steps by semi-implicit Euler, the first numbered
+    ``step0 + 1`` by adaptive dynamics and at ``t = time0 dt`` (the simulator's
+    step count), each as ``AdaptiveDynamics.step`` takes it from Python:
+    forces (the built-in elements of ``F`` at evaluation ``e0 + s`` for the step
+    ``s`` of the call, if ``use_forces``), the first evaluation, under ``drop="lock"`` the
+    immediate locking of what it pruned and a second evaluation, the integration
+    of the active joints, the region update; then the simulator's checks on the
+    active joints. ``options`` = (predictive, budget, lookahead, locking,
+    momentum, dwell, dt, keep, kappa, threshold); ``sums`` = the force sums held
+    by the groups and ``carry_forces``' scratch; ``force_work`` = (kinematics,
+    states, f_ext, tau) of every body. Writes each step's :data:`STEP_COUNTERS`
+    into ``counters`` (n, 9) and keeps the state before the last step in
+    ``last`` (q, qd). Stops after a step that changed the region if
+    ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
+    status)``: 0, or 1 if a step's ``qdd`` was not finite (its state not
+    advanced), 2 if its new state failed the checks (``last`` holds the one before)."""
+    predictive, budget, lookahead_on, locking, momentum, dwell, dt, keep, kappa, threshold = \
+        options
+    held, pending, mark, order, is_B = sums
+    fkin, states, f_ext, tau = force_work
+    q_last, qd_last = last
+    active, counts, qdd = region[0], region[10], work[7]
+    for s in range(n):
+        step = step0 + s
+        t = (time0 + s) * dt
+        for i in range(q.shape[0]):
+            q_last[i] = q[i]
+        for i in range(qd.shape[0]):
+            qd_last[i] = qd[i]
+        row = counters[s]
+        for c in range(row.shape[0]):
+            row[c] = 0
+        row[0], row[1] = counts[N_JOINTS], counts[FRONT]
+        row[5] += forces_now(use_forces, F, e0 + s, t, js, q, qd, fkin, states, f_ext, tau,
+                             held, active, up, is_B, groups, pending, mark, order)
+        if not evaluate(True, predictive, budget, False, lookahead_on, locking, step + 1, dwell,
+                        dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau,
+                        kin, work, region):
+            return s, 1
+        if locking and counts[ACCELERATED] < counts[ASSEMBLED]:
+            nc = lock_pruned(nb, up, region, stack)
+            if nc:
+                change_now(nc, 0, step + 1, momentum, predictive, dt, nb, js, tree, bodies,
+                           groups, top, up, roots, q, qd, kin, work, region, stack)
+                row[7] += counts[RIGIDIFIED]
+            row[0], row[1] = counts[N_JOINTS], counts[FRONT]
+            row[5] += forces_now(use_forces, F, e0 + s, t, js, q, qd, fkin, states, f_ext, tau,
+                                 held, active, up, is_B, groups, pending, mark, order)
+            if not evaluate(False, predictive, budget, False, lookahead_on, locking, step + 1,
+                            dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots,
+                            q, qd, tau, kin, work, region):
+                return s, 1
+        euler_active(dt, js, bodies, region, q, qd, qdd)
+        row[2], row[3], row[4], row[6] = (counts[ACCELERATED], counts[ASSEMBLED], counts[SOLVED],
+                                          counts[LOOKAHEAD])
+        nc, nr = update_region(step + 1, budget, lookahead_on, dt, threshold, keep, dwell, nb, js,
+                               tree, up, qd, region, stack)
+        if nc + nr:
+            change_now(nc, nr, step + 1, momentum, predictive, dt, nb, js, tree, bodies, groups,
+                       top, up, roots, q, qd, kin, work, region, stack)
+            row[7] += counts[RIGIDIFIED]
+            row[8] += counts[RELEASED]
+        if not active_state_ok(dt, js, bodies, region, rotational, q, qd):
+            return s, 2
+        if stop_on_change and row[7] + row[8]:
+            return s + 1, 0
+    return n, 0

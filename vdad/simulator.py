@@ -299,6 +299,10 @@ class Simulator:
         while n > 0:
             m = min(n, self.CHUNK)
             F = self._tables_for(m)
+            if self._adaptive_loop(F):
+                self._run_adaptive(m, F)
+                n -= m
+                continue
             for k in range(m):
                 try:
                     if self.adaptive is None:
@@ -319,6 +323,42 @@ class Simulator:
             n -= m
         return self
 
+    def _adaptive_loop(self, F):
+        """Whether adaptive steps can run in compiled code (:meth:`_run_adaptive`):
+        :attr:`adaptive_loop`, semi-implicit Euler, and forces that are vdad's own
+        elements (tables ``F``) or none at all."""
+        if self.adaptive is None or not self.adaptive_loop or self._rk4:
+            return False
+        if F is not None:
+            return True
+        return (self.controller is None and self.external is None
+                and not self.adaptive.groups.any_force)
+
+    def _run_adaptive(self, m, F):
+        """``m`` adaptive steps in compiled code (:meth:`AdaptiveDynamics.run`, one
+        call per stretch between coverage evaluations), with the same history,
+        checks and errors as one step at a time."""
+        done = 0
+        while done < m:
+            q, qd = self.q.copy(), self.qd.copy()
+            try:
+                k, status, q_last, qd_last = self.adaptive.run(
+                    m - done, self.step_count, q, qd, self._rotational,
+                    None if F is None else (F, done), self.history)
+            except InputError as exc:              # from the coverage estimator
+                raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): "
+                                      f"{exc}") from exc
+            self._advance(k)
+            done += k
+            if status == 0:
+                self.q, self.qd = q, qd
+                continue
+            self.q, self.qd = q_last.copy(), qd_last.copy()
+            if status == 1:
+                raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): "
+                                      f"{self.adaptive.not_finite()}")
+            self._check_step(q, qd)
+
     def _tables_for(self, m):
         """With adaptive dynamics and forces of vdad's own elements only, their
         :meth:`~vdad.forces.ForceTables.arrays` for the next ``m`` steps; else (or
@@ -334,6 +374,10 @@ class Simulator:
             return None
 
     CHUNK = 512          # compiled steps per call: bounds the time-dependent force tables
+    #: adaptive steps by semi-implicit Euler run in compiled code where the forces
+    #: allow (AdaptiveDynamics.run); False: one Python-level step at a time, each
+    #: phase timed apart (StepStats.times)
+    adaptive_loop = True
 
     def force_tables(self):
         """The :class:`~vdad.forces.ForceTables` of the current ``controller`` and
