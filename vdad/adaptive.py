@@ -33,7 +33,7 @@ derivations and measurements.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -114,6 +114,10 @@ class StepStats:
     def node_visits(self) -> int:
         """Nodes touched by the passes: active nodes, their front, the force-update region."""
         return self.assembled + self.front + self.force_update
+
+
+#: the columns of ``region_steps``' counters in the order of StepStats' fields
+_COUNTER_COLUMNS = [STEP_COUNTERS.index(f.name) for f in fields(StepStats) if f.name != "times"]
 
 
 def default_weights(model):
@@ -199,7 +203,8 @@ class AdaptiveDynamics:
     the back-substitution they save (``docs/adaptive.md``).
     coverage: None (``N_M = 1``: view-independent) or an estimator
     ``(t, q, adaptive) -> N_M`` per node (:mod:`vdad.visibility`), evaluated
-    every ``coverage_every`` steps and whenever the active region changes.
+    every ``coverage_every`` steps and, unless its ``covers_every_node`` is
+    true, whenever the active region changes.
     """
 
     def __init__(self, model, dt, tree=None, threshold=None, budget=None, weights=None,
@@ -571,25 +576,27 @@ class AdaptiveDynamics:
         t0 = time.perf_counter()
         with compiling(region_steps):
             done, status = region_steps(
-                m, self.step_count, time0, e0, self.coverage is not None, options,
+                m, self.step_count, time0, e0, self._refresh_on_change, options,
                 self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots, sums,
                 tables is not None, F, (self._force_work[0].arrays, *self._force_work[1:]),
                 rotational, q, qd, self.kin.arrays, self.data.arrays, r.arrays, self._stack,
                 last, counters)
         rows = done + (status == 2)
         each = (time.perf_counter() - t0) / max(rows, 1)
-        for i in range(rows):
-            st = StepStats(**dict(zip(STEP_COUNTERS, map(int, counters[i]), strict=True)))
-            st.times["steps"] = each
-            if i == 0:
-                st.times["visibility"] = vis
+        times = dict.fromkeys(PHASES, 0.0)
+        times["steps"] = each
+        stats = [StepStats(*row, times=times.copy())
+                 for row in counters[:rows, _COUNTER_COLUMNS].tolist()]
+        if stats:
+            stats[0].times["visibility"] = vis
+            self.stats = stats[-1]
             if history is not None:
-                history.append(st)
-            self.stats = st
+                history += stats
+            if self.stats.rigidified + self.stats.released:
+                self._stale_coverage = self._refresh_on_change
         self.step_count += rows
-        if rows and counters[rows - 1, 7] + counters[rows - 1, 8]:
-            self._stale_coverage = True
-        self.groups.any_force = bool(np.any(self.groups.f_ext))
+        if tables is not None:
+            self.groups.any_force = bool(np.any(self.groups.f_ext))
         return done, status, last[0], last[1]
 
     def _change(self, nc, nr, step, q, qd):
@@ -604,8 +611,16 @@ class AdaptiveDynamics:
             change_now(nc, nr, step, self.policy == "momentum", self.predictive, self.dt,
                        self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots,
                        q, qd, self.kin.arrays, self.data.arrays, r.arrays, self._stack)
-        self._stale_coverage = True
+        self._stale_coverage = self._stale_coverage or self._refresh_on_change
         return int(r.counts[RIGIDIFIED]), int(r.counts[RELEASED])
+
+    @property
+    def _refresh_on_change(self):
+        """Whether a region change needs the coverage anew: an estimator that gives
+        only the region's nodes (``covers_every_node`` False or absent) leaves the
+        new front without values; one that gives every node keeps its frame's."""
+        return self.coverage is not None and not getattr(self.coverage, "covers_every_node",
+                                                         False)
 
     def _stage(self, st, first, t, q, qd, k=0):
         """Evaluation ``k`` of a step: forces (:meth:`_forces`), then the passes."""

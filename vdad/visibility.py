@@ -18,10 +18,12 @@ joint moves": by the pixels of the bodies its joints displace,
 
 ``adaptive`` is the :class:`~vdad.adaptive.AdaptiveDynamics` whose region is
 being simulated, or None for a full evaluation at configuration ``q``. With
-adaptive dynamics only the active nodes and the front need ``N_M``: for spheres
-and oriented boxes each rigid front node keeps its volume in its group frame
-(computed once when it became rigid) and is only placed, so ``N1`` costs
-follow the active region; ``N2``, world boxes and rendering touch every body.
+adaptive dynamics only the active nodes and the front need ``N_M``: under eq. 5
+(``estimate="node"``) with spheres and oriented boxes each rigid front node
+keeps its volume in its group frame (computed once when it became rigid) and is
+only placed, so the cost follows the active region (and a region change needs a
+new evaluation: :attr:`BoundingVolumes.covers_every_node`); eqs. 6-7, world
+boxes and rendering touch every body, and evaluate the whole tree in one pass.
 """
 
 from __future__ import annotations
@@ -141,15 +143,15 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
 
 
 @pass_kernel
-def region_coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, front, act, grounded,
-                         top, R, p, local, world, N2, N, cc, Rcam, scratch):
-    """``N_M`` of the adaptive region's nodes (``front`` rigid groups and ``act``
-    active nodes, ascending) into ``N``; every other node NaN. Each front node's
+def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, grounded, top, R, p,
+                         local, world, N, cc, Rcam, scratch):
+    """``N_M`` by eq. 5 (the node's own volume) of the adaptive region's nodes
+    (``front`` rigid groups and ``act`` active nodes, ascending) into ``N``;
+    every other node NaN. Each front node's
     volume kept in its group frame (``local``) is placed at the group's world pose
     (the world for a ``grounded`` group, else the pose ``R``, ``p`` of its ``top``
     body from the active joints' kinematics); each active node's is merged from
-    its children's. ``N2`` (n_nodes + 1,): the bodies' totals, or empty for
-    ``estimate`` node."""
+    its children's."""
     lc, lR, lh = local
     c, Rv, h = world
     n_nodes = nb + left.shape[0]
@@ -171,9 +173,6 @@ def region_coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, front, a
             A, B = child_slot(left[n - nb], n_nodes), child_slot(right[n - nb], n_nodes)
             merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
         N[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
-    if estimate != NODE:
-        for n in range(n_nodes):
-            N[n] = N2[n] if np.isnan(N[n]) else min(N[n], N2[n])
 
 
 @pass_kernel
@@ -282,40 +281,34 @@ class BoundingVolumes(_Coverage):
             for child in (tree.left[m], tree.right[m]):
                 if child >= nb:
                     self._first[m] = min(self._first[m], self._first[child - nb])
-        self._N1, self._N2 = np.zeros(n + 1), np.zeros(n + 1)
+        self._N1 = np.zeros(n + 1)
         self._scratch = (np.empty(3), np.empty((3, 3)), box_scratch())
-        self._none = np.zeros(0)
+
+    @property
+    def covers_every_node(self):
+        """Whether a call gives every node its value (False: only the adaptive
+        region's nodes, the others NaN; then a region change needs a new call)."""
+        return self.pixels == "moved" or self.kind == "aabb" or self.estimate != "node"
 
     def __call__(self, t, q, adaptive=None):
         cam = self.camera(t)
         view, (Rc, pc) = view_of(cam), camera_pose(cam)
         nb, N = self.model.nb, np.empty(self.tree.n_nodes + 1)
-        if self.pixels == "moved":
-            R, p = self.poses(q, adaptive)
-            coverage_pass(self._kind, BODIES, view, Rc, pc, nb, self._left, self._right,
+        if adaptive is None or self.covers_every_node:
+            # eqs. 6-7 and world boxes place every body anyway: one pass over the
+            # whole tree from every body's pose (rigid joints keep their q)
+            R, p = self.poses(q, None)
+            estimate = BODIES if self.pixels == "moved" else self._estimate
+            coverage_pass(self._kind, estimate, view, Rc, pc, nb, self._left, self._right,
                           self.body, as_input(R), as_input(p), self.world, self._N1, N,
                           *self._scratch)
-            return self.node_pixels(N)
-        if adaptive is None or self.kind == "aabb" or self.estimate == "bodies":
-            R, p = self.poses(q, adaptive)
-            coverage_pass(self._kind, self._estimate, view, Rc, pc, nb, self._left,
-                          self._right, self.body, as_input(R), as_input(p), self.world,
-                          self._N1, N, *self._scratch)
-            return N
-        N2 = self._none
-        if self.estimate == "min":
-            R, p = self.poses(q, adaptive)
-            coverage_pass(self._kind, BODIES, view, Rc, pc, nb, self._left, self._right,
-                          self.body, as_input(R), as_input(p), self.world, self._N1,
-                          self._N2, *self._scratch)
-            N2 = self._N2
+            return self.node_pixels(N) if self.pixels == "moved" else N
         front, act = adaptive.front, adaptive.act
         self._refresh(front, adaptive)
         kin = adaptive.front_kinematics(q)
-        region_coverage_pass(self._kind, self._estimate, view, Rc, pc, nb, self._left,
-                             self._right, _ids(front), _ids(act), adaptive.groups.grounded,
-                             adaptive.top, kin.R, kin.p, self.local, self.world, N2, N,
-                             *self._scratch)
+        region_coverage_pass(self._kind, view, Rc, pc, nb, self._left, self._right,
+                             _ids(front), _ids(act), adaptive.groups.grounded, adaptive.top,
+                             kin.R, kin.p, self.local, self.world, N, *self._scratch)
         return N
 
     def _refresh(self, front, adaptive):
@@ -348,6 +341,8 @@ class RenderedCounts(_Coverage):
         w, h = self.resolution or (start.width, start.height)
         self.counter = PixelCounter(self.model, environment, w, h, method)
         self.resolution = (w, h)
+
+    covers_every_node = True           # every body counted, summed or moved up the tree
 
     def __call__(self, t, q, adaptive=None):
         N = np.zeros(self.tree.n_nodes + 1)
