@@ -398,7 +398,7 @@ def write_report(rows, out, quick):
         header, body = table1(rows["table1"])
         lines += ["## Table 1: 20-body pendulum", ""] + _table(header, body) + [
             "", "The paper's pendulum has 19 joints; ours has 20 (its first joint holds it "
-            "to the world). The paper does not give its threshold: two are shown.", ""]
+            "to the world). The paper does not give its threshold: several are shown.", ""]
     for name, x_of, what, title in (
             ("figure8", lambda c: c["options"]["threshold"], "the threshold",
              "Figure 8: against the error threshold"),

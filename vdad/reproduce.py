@@ -106,7 +106,7 @@ def plan(quick=False) -> dict:
     q = bool(quick)
     p_steps, p_every = (200, 20) if q else (600, 20)
     table1 = [_config("pendulum", {"n_bodies": 20}, "dca", {}, 200 if q else 1000, 10)]
-    for t in (0.01, 0.03):
+    for t in (0.01, 0.03) if q else (0.01, 0.03, 0.1):
         for m in ("adaptive", "view-bvh", "view-oq"):
             options = {"threshold": t * 1e-3} if m == "adaptive" else _view(m, t)
             table1.append(_config("pendulum", {"n_bodies": 20}, m, options,
