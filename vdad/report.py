@@ -360,9 +360,11 @@ def decreasing(xs, ys, slack=0.0):
 
 def _trend_lines(rows, x_of, what):
     lines = []
-    for m in ("view-bvh", "view-oq"):
-        mine = [r for r in rows if r["config"]["method"] == m and not r["failure"]]
-        failed = sum(1 for r in rows if r["config"]["method"] == m and r["failure"])
+    for m in CURVES:
+        if not any(curve(r["config"]) == m for r in rows):
+            continue
+        mine = [r for r in rows if curve(r["config"]) == m and not r["failure"]]
+        failed = sum(1 for r in rows if curve(r["config"]) == m and r["failure"])
         if len(mine) < 2:
             lines.append(f"- {m}: fewer than two runs finished ({failed} diverged).")
             continue
@@ -379,8 +381,8 @@ def _trend_lines(rows, x_of, what):
             f", node visits per step {_num(lo['node_visits'])} -> {_num(hi['node_visits'])} "
             f"({'decreasing' if v else 'not monotone'}), "
             f"ms per step {_num(lo['ms_per_step'])} -> {_num(hi['ms_per_step'])} "
-            f"({'decreasing' if t else 'not monotone'}); "
-            f"{failed} run(s) diverged.")
+            f"({'decreasing' if t else 'not monotone'}), mean screen error "
+            f"{_num(_err(lo))} -> {_num(_err(hi))} px; {failed} run(s) diverged.")
     return lines
 
 

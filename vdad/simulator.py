@@ -208,7 +208,12 @@ class Simulator:
     for ``"dca"``). An option that no method takes, or one that this method does
     not take, is an :class:`InputError` that lists what it takes.
     integrator: ``"semi-implicit"`` (symplectic Euler) or ``"rk4"``.
-    tree: assembly tree (default: balanced).
+    tree: assembly tree (default: balanced; for the adaptive methods on a model
+    with a floating base, and for the baselines, the balanced tree with every
+    joint to the world assembled last, :func:`~vdad.baselines.root_last_tree`:
+    a floating base is never rigidified, nor are the nodes above its joint, so
+    at the top it keeps one joint articulated per floating body instead of a
+    path of them, ``docs/adaptive.md``).
 
     With ``"adaptive"``, ``history`` holds the :class:`~vdad.adaptive.StepStats`
     of every step and ``adaptive`` the adaptive work state.
@@ -229,7 +234,9 @@ class Simulator:
         self.integrator_name = integrator
         self._integrate = get_integrator(integrator)
         if tree is None:
-            tree = root_last_tree(model) if method in BASELINES else default_tree(model)
+            floating = bool(np.any((model.parent < 0) & (model.nv_joint == 6)))
+            tree = (root_last_tree(model) if method in BASELINES
+                    or (method != "dca" and floating) else default_tree(model))
         self.tree = check_tree(model, tree)
         self.data = dca.make_data(self.tree)
         self.controller = check_callable("controller", controller, "(t, q, qd) -> tau (nv,)")
