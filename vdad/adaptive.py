@@ -68,7 +68,7 @@ from .region import (
     STEP_COUNTERS,
     RegionData,
     active_state_ok,
-    change_now,
+    change_region,
     euler_active,
     evaluate,
     lock_pruned,
@@ -602,15 +602,21 @@ class AdaptiveDynamics:
     def _change(self, nc, nr, step, q, qd):
         """Rigidify the ``nc`` candidates and release the ``nr`` front nodes that
         ``update_region`` or ``lock_pruned`` left in the stack, with the locking
-        impulse on ``qd`` under the momentum policy (``vdad.region.change_now``).
+        impulse on ``qd`` under the momentum policy (``vdad.region.change_region``,
+        then ``evaluate`` with ``impulse``).
         Returns (nodes rigidified, nodes released)."""
         if nc + nr == 0:
             return 0, 0
-        r = self.region
-        with compiling(change_now):
-            change_now(nc, nr, step, self.policy == "momentum", self.predictive, self.dt,
-                       self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots,
-                       q, qd, self.kin.arrays, self.data.arrays, r.arrays, self._stack)
+        r, momentum = self.region, self.policy == "momentum"
+        with compiling(change_region):
+            change_region(nc, nr, step, momentum, self.model.nb, plan(self.model).arrays,
+                          self.tree.arrays, self.groups.arrays, self._top, self._roots, q, qd,
+                          self.kin.arrays, r.arrays, self._stack)
+        if nc and momentum:                     # the locking impulse on qd
+            with compiling(evaluate):
+                evaluate(False, self.predictive, 0, True, False, False, step, 0, self.dt, 0.0,
+                         1.0, self.model.nb, *self._args()[:4], self._top, self.groups.up,
+                         self._roots, q, qd, qd, self.kin.arrays, self.data.arrays, r.arrays)
         self._stale_coverage = self._stale_coverage or self._refresh_on_change
         return int(r.counts[RIGIDIFIED]), int(r.counts[RELEASED])
 

@@ -1018,19 +1018,6 @@ STEP_COUNTERS = ("active_joints", "front", "accelerated", "assembled", "back_sub
 
 
 @pass_kernel
-def change_now(nc, nr, step, momentum, predictive, dt, nb, js, tree, bodies, groups, top, up,
-               roots, q, qd, kin, work, region, stack):
-    """Rigidify the ``nc`` candidates and release the ``nr`` front nodes left in
-    ``stack`` (:func:`change_region`), then, under the momentum policy, apply the
-    locking impulse to ``qd`` (:func:`evaluate` with ``impulse``)."""
-    change_region(nc, nr, step, momentum, nb, js, tree, groups, top, roots, q, qd, kin, region,
-                  stack)
-    if nc and momentum:
-        evaluate(False, predictive, 0, True, False, False, step, 0, dt, 0.0, 1.0, nb, js, tree,
-                 bodies, groups, top, up, roots, q, qd, qd, kin, work, region)
-
-
-@pass_kernel
 def forces_now(use, F, e, t, js, q, qd, fkin, states, f_ext, tau, held, active, up, is_B,
                groups, pending, mark, order):
     """The built-in forces of the tables ``F`` at evaluation ``e`` (with ``use``;
@@ -1090,8 +1077,12 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         if locking and counts[ACCELERATED] < counts[ASSEMBLED]:
             nc = lock_pruned(nb, up, region, stack)
             if nc:
-                change_now(nc, 0, step + 1, momentum, predictive, dt, nb, js, tree, bodies,
-                           groups, top, up, roots, q, qd, kin, work, region, stack)
+                change_region(nc, 0, step + 1, momentum, nb, js, tree, groups, top, roots, q,
+                              qd, kin, region, stack)
+                if momentum:                    # the locking impulse (evaluate's impulse)
+                    evaluate(False, predictive, 0, True, False, False, step + 1, 0, dt, 0.0,
+                             1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd, kin,
+                             work, region)
                 row[7] += counts[RIGIDIFIED]
             row[0], row[1] = counts[N_JOINTS], counts[FRONT]
             row[5] += forces_now(use_forces, F, e0 + s, t, js, q, qd, fkin, states, f_ext, tau,
@@ -1106,8 +1097,12 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         nc, nr = update_region(step + 1, budget, lookahead_on, dt, threshold, keep, dwell, nb, js,
                                tree, up, qd, region, stack)
         if nc + nr:
-            change_now(nc, nr, step + 1, momentum, predictive, dt, nb, js, tree, bodies, groups,
-                       top, up, roots, q, qd, kin, work, region, stack)
+            change_region(nc, nr, step + 1, momentum, nb, js, tree, groups, top, roots, q, qd,
+                          kin, region, stack)
+            if nc and momentum:
+                evaluate(False, predictive, 0, True, False, False, step + 1, 0, dt, 0.0, 1.0,
+                         nb, js, tree, bodies, groups, top, up, roots, q, qd, qd, kin, work,
+                         region)
             row[7] += counts[RIGIDIFIED]
             row[8] += counts[RELEASED]
         if not active_state_ok(dt, js, bodies, region, rotational, q, qd):
