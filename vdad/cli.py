@@ -227,8 +227,8 @@ def build_parser():
     comp = sub.add_parser(
         "compile", help="compile the numba kernels now, on several cores",
         description="Compile vdad's numba kernels into numba's on-disk cache ahead of a "
-        "first run, in several processes at once (on two cores about four minutes in one "
-        "process, less with --jobs 2); later runs load them in under a second.")
+        "first run, in several processes at once (on two cores about fifteen minutes in one "
+        "process, nine and a half with --jobs 2); later runs load them in under a second.")
     comp.add_argument("--jobs", type=_positive_int, default=2,
                       help="processes compiling at once (default 2)")
     comp.add_argument("--no-progress", action="store_true",

@@ -1,8 +1,9 @@
 """Compile the numba kernels ahead of a first run (``vdad compile``; ``docs/design.md``).
 
 The first call of each compiled pass compiles it and every kernel it inlines,
-one after another in one process: on two cores about a minute for the DCA and
-four for everything. :func:`compile_kernels` runs the first steps of small
+one after another in one process: on two cores about three minutes for the
+DCA and some fifteen for everything (the compiled adaptive step loop links the
+adaptive kernels again, about eight of them). :func:`compile_kernels` runs the first steps of small
 scenes in several processes at once, each a share of the passes (:data:`PARTS`),
 so that compiling uses every core; numba's on-disk cache keeps the result for
 every later process (a test suite, a notebook, ``vdad run``). Only the argument
@@ -37,14 +38,26 @@ def _dynamics():
 
 
 def _adaptive():
-    """Adaptive dynamics: evaluations, the look-ahead, region changes with the
-    locking impulse, both integrators, and the view-dependent region coverage."""
+    """Adaptive dynamics one Python-level step at a time (RK4, and semi-implicit
+    with ``adaptive_loop`` off): evaluations, the look-ahead, region changes with
+    the locking impulse, and the view-dependent region coverage of eq. 5."""
     from .scenes import pendulum
 
     scene = pendulum(8)
-    for options in ({"budget": 3, "dwell": 0}, {"budget": 3, "integrator": "rk4"}):
-        scene.simulator(method="adaptive", **options).step(4)
-    scene.simulator(method="view-bvh", threshold=1e-3, dwell=0).step(4)
+    for options in ({"budget": 3, "dwell": 0}, {"budget": 3, "integrator": "rk4"},
+                    {"method": "view-bvh", "threshold": 1e-3, "dwell": 0, "estimate": "node"}):
+        sim = scene.simulator(**{"method": "adaptive", **options})
+        sim.adaptive_loop = False
+        sim.step(4)
+
+
+def _loop():
+    """Whole adaptive steps in compiled code (``region.region_steps``), which
+    links the adaptive kernels again: compiled beside :func:`_adaptive`, in a
+    process of its own."""
+    from .scenes import pendulum
+
+    pendulum(8).simulator(method="adaptive", budget=3, dwell=0).step(4)
 
 
 def _coverage():
@@ -63,8 +76,10 @@ def _coverage():
         areas(merge(world, world), scene.camera)
 
 
-#: the shares of the kernels, each compiled in a process of its own
-PARTS = {"dynamics": _dynamics, "adaptive": _adaptive, "coverage": _coverage}
+#: the shares of the kernels, each compiled in a process of its own, the longest
+#: first (on two cores: the loop beside the adaptive kernels, then the DCA and the
+#: coverage on whichever core is free first)
+PARTS = {"loop": _loop, "adaptive": _adaptive, "dynamics": _dynamics, "coverage": _coverage}
 
 
 def run_part(name):
