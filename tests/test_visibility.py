@@ -156,6 +156,13 @@ def test_view_method_errors():
         scene.simulator(method="view-bvh", threshold=1e-3, volume="cone")
     with pytest.raises(InputError, match="unknown coverage estimate"):
         scene.simulator(method="view-bvh", threshold=1e-3, estimate="max")
+    with pytest.raises(InputError, match="unknown pixels rule 'mine'; choose one of"):
+        scene.simulator(method="view-bvh", threshold=1e-3, pixels="mine")
+    with pytest.raises(InputError, match="estimate='node' .* does not apply to pixels='moved'"):
+        scene.simulator(method="view-bvh", threshold=1e-3, pixels="moved", estimate="node")
+    with pytest.raises(InputError, match=r"pixels= applies to method='view-bvh' or "
+                                         r"method='view-oq', not to method='adaptive'"):
+        scene.simulator(method="adaptive", threshold=1e-3, pixels="moved")
     with pytest.raises(InputError, match="resolution"):
         scene.simulator(method="view-bvh", threshold=1e-3, resolution=(320, 0))
     with pytest.raises(InputError, match="coverage_every"):

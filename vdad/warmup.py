@@ -3,10 +3,11 @@
 The first call of each compiled pass compiles it and every kernel it inlines,
 one after another in one process: on two cores about three minutes for the
 DCA and some fifteen for everything (the compiled adaptive step loop links the
-adaptive kernels again, about eight of them). :func:`compile_kernels` runs the first steps of small
-scenes in several processes at once, each a share of the passes (:data:`PARTS`),
-so that compiling uses every core; numba's on-disk cache keeps the result for
-every later process (a test suite, a notebook, ``vdad run``). Only the argument
+adaptive kernels again, which takes about eight of those fifteen minutes).
+:func:`compile_kernels` runs the first steps of small scenes in several
+processes at once, each a share of the passes (:data:`PARTS`), so that
+compiling uses every core; numba's on-disk cache keeps the result for every
+later process (a test suite, a notebook, ``vdad run``). Only the argument
 types of a call decide what compiles, so a few steps of each method reach the
 same kernels as any run of it.
 """
