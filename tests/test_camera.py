@@ -104,6 +104,27 @@ def test_orbit_checks_on_construction():
     np.testing.assert_allclose(Orbit(cam, 4)(1).position, (0.0, 3.0, 0.0), atol=1e-12)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_dolly_and_orbit_cameras_equal_checked_cameras_at_their_positions(seed):
+    """The paths build their cameras unchecked, with axes carried over (dolly) or
+    turned about ``up`` (orbit): equal to a Camera checked and built from
+    scratch at the same position, and a dolly leaving the finite numbers fails."""
+    rng = np.random.default_rng(seed)
+    cam = Camera(position=tuple(rng.normal(size=3) * 5), target=tuple(rng.normal(size=3)),
+                 up=tuple(rng.normal(size=3)), yfov=0.8, width=64, height=48)
+    for path in (Dolly(cam, rng.normal() * 3), Orbit(cam, rng.uniform(0.5, 3.0))):
+        for t in rng.uniform(0, 4, 3):
+            moved = path(t)
+            checked = Camera(position=moved.position, target=cam.target, up=cam.up,
+                             yfov=cam.yfov, width=cam.width, height=cam.height)
+            assert moved == checked and isinstance(moved.position[0], float)
+            np.testing.assert_allclose(moved.rotation, checked.rotation, atol=1e-12)
+            np.testing.assert_allclose(moved.view, checked.view, atol=1e-10)
+            assert not moved.rotation.flags.writeable
+    with pytest.raises(InputError, match="camera path left the finite numbers"):
+        Dolly(cam, 1e308)(1e10)
+
+
 def test_keyframes_check_times_and_cameras():
     a, b = Camera(), Camera(position=(5, 0, 0))
     with pytest.raises(InputError, match="keyframe times must be a sequence of numbers, got 5"):
