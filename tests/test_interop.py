@@ -15,6 +15,7 @@ any modelling error (those show up at 1e-3 and above).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -34,6 +35,7 @@ from strategies import (
 
 import vdad
 from vdad.interop.mujoco import (
+    LEFT_OUT,
     from_mujoco,
     load_mjcf,
     mujoco_forward,
@@ -278,8 +280,8 @@ def test_load_mjcf_takes_a_path(path):
 
 
 def test_load_mjcf_rejects_unknown_options(hip_xml):
-    with pytest.raises(vdad.InputError, match=r"load_mjcf got unknown option\(s\) "
-                                              r"\['strickt'\]; it takes \['path', 'strict'\]"):
+    with pytest.raises(vdad.InputError, match=r"load_mjcf got unknown option\(s\) \['strickt'\]; "
+                                              r"it takes \['path', 'report', 'strict'\]"):
         load_mjcf(hip_xml, strickt=False)
     assert load_mjcf(hip_xml, strict=False).nb == load_mjcf(hip_xml).nb
 
@@ -324,28 +326,128 @@ def _xml(body, extra=""):
             f'<geom size="0.1"/>{body}</body></worldbody>{extra}</mujoco>')
 
 
-UNSUPPORTED = {
+LEFT_OUT_CASES = {
     "frictionloss": (_xml('<body name="b"><joint name="fl_j" frictionloss="0.2"/>'
-                          '<geom size="0.1"/></body>'), "fl_j"),
-    "equality": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
-                      '<equality><joint name="eq_lock" joint1="j1" joint2="j2"/></equality>'),
-                 "eq_lock"),
-    "tendon": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
-                    '<tendon><fixed name="tend"><joint joint="j1" coef="1"/></fixed></tendon>'),
-               "tend"),
-    "actuator": (_xml("", '<actuator><motor name="mot" joint="j1"/></actuator>'), "mot"),
-    "zero mass": (_xml('<body name="ghost" pos="1 0 0"/>'), "ghost.*inertial"),
-    "mocap": ('<mujoco><worldbody><body name="mc" mocap="true"><geom size="0.1"/></body>'
-              '</worldbody></mujoco>', "mc"),
+                          '<geom size="0.1"/></body>'), ("fl_j",)),
+    "equality constraints": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
+                                  '<equality><joint name="eq_lock" joint1="j1" joint2="j2"/>'
+                                  '</equality>'), ("eq_lock",)),
+    "tendons": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
+                     '<tendon><fixed name="tend" stiffness="3"><joint joint="j1" coef="1"/>'
+                     '</fixed><fixed name="measured"><joint joint="j2" coef="1"/></fixed>'
+                     '</tendon>'), ("tend",)),
+    "actuators": (_xml("", "<actuator>" + "".join(f'<motor name="mot{i}" joint="j1"/>'
+                                                  for i in range(5)) + "</actuator>"),
+                  tuple(f"mot{i}" for i in range(5))),
+    "gravity compensation": ('<mujoco><worldbody><body name="a" gravcomp="1"><joint/>'
+                             '<geom size="0.1"/></body></worldbody></mujoco>', ("a",)),
 }
 
 
-@pytest.mark.parametrize("feature", sorted(UNSUPPORTED))
-def test_unsupported_feature_names_the_culprit(feature):
-    xml, culprit = UNSUPPORTED[feature]
-    m = mujoco.MjModel.from_xml_string(xml)
-    with pytest.raises(vdad.UnsupportedFeatureError, match=culprit):
-        from_mujoco(m)
+def _no_contact(xml):
+    return xml.replace("<mujoco>", '<mujoco><option><flag contact="disable"/></option>', 1)
+
+
+@pytest.mark.parametrize("feature", sorted(LEFT_OUT_CASES))
+def test_left_out_features_are_named_once_and_refused_when_strict(feature):
+    """By default a feature vdad does not model is left out with one warning that
+    names it (at most three names, then "and N more") and says what to do; the
+    report lists exactly its names; strict=True refuses the model instead."""
+    xml, names = LEFT_OUT_CASES[feature]
+    m = mujoco.MjModel.from_xml_string(_no_contact(xml))
+    with pytest.raises(vdad.UnsupportedFeatureError, match=f"left out {feature} .*"
+                                                           f"strict=False leaves them out"):
+        from_mujoco(m, strict=True)
+    with pytest.warns(UserWarning) as record:
+        model, report = from_mujoco(m, report=True)
+    assert len(record) == 1 and record[0].filename == __file__
+    text = str(record[0].message)
+    assert "\n" not in text and "strict=True refuses" in text
+    assert (" and 2 more" in text) == (len(names) == 5)
+    assert report.left_out == ((feature, names, LEFT_OUT[feature]),)
+    assert LEFT_OUT[feature] in str(report) and report.welded == ()
+    assert model.nb == m.nbody - 1
+
+
+def test_features_switched_off_in_mujoco_are_not_left_out():
+    """A feature that does not act with the model's disable flags (or a tendon
+    without spring, damper or limit) is not reported."""
+    for feature in ("equality constraints", "actuators", "frictionloss"):
+        m = mujoco.MjModel.from_xml_string(_no_contact(LEFT_OUT_CASES[feature][0]))
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+                                  | mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+        assert from_mujoco(m, strict=True, report=True)[1].left_out == ()
+    m = mujoco.MjModel.from_xml_string(LEFT_OUT_CASES["tendons"][0])
+    m.tendon_stiffness[:] = 0.0
+    with pytest.warns(UserWarning, match=r"left out contacts \('a', 'b'\); report=True"):
+        assert [f for f, *_ in from_mujoco(m, report=True)[1].left_out] == ["contacts"]
+
+
+WELDED = """
+<mujoco model="welded">
+  <option><flag contact="disable"/></option>
+  <worldbody>
+    <geom name="floor" type="plane" size="3 2 0.1" pos="0 0 -1"/>
+    <body name="stand" pos="0 0 0.5" euler="0 0 30">
+      <geom name="stand_box" type="box" size="0.1 0.2 0.05" pos="0.3 0 0" mass="0"/>
+      <body name="a" pos="0.1 0 0">
+        <joint name="j1" axis="0 1 0"/>
+        <geom size="0.1" pos="0 0 -0.2"/>
+        <body name="frame" pos="0 0.1 -0.4" euler="20 10 0">
+          <body name="b">
+            <joint name="j2" axis="1 0 0" damping="0.3" armature="0.05"/>
+            <geom type="capsule" size="0.05 0.2"/>
+            <body name="foot_site" pos="0.1 0 -0.2" quat="0.9 0.1 0.3 0">
+              <geom name="foot_box" type="box" size="0.05 0.03 0.02" mass="0" pos="0 0.02 0"/>
+            </body>
+          </body>
+        </body>
+      </body>
+    </body>
+    <body name="target" mocap="true" pos="1 1 1"><geom name="ball" size="0.05"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_massless_bodies_without_joints_are_welded_as_mujoco_does():
+    """Massless bodies without joints (a stand below the world, a frame between two
+    links, a foot site) are welded into their parents, mocap bodies and the
+    world's geoms become environment geometry: the accelerations equal
+    mj_forward's, and every geom sits where MuJoCo puts it."""
+    m = mujoco.MjModel.from_xml_string(WELDED)
+    d = mujoco.MjData(m)
+    model, report = from_mujoco(m, strict=True, report=True)
+    assert model.body_names == ("a", "b") and report.welded == ("stand", "frame", "foot_site")
+    assert report.left_out == ()
+    body, _, _ = mujoco_layout(m)
+    np.testing.assert_array_equal(body, [2, 4])
+    for seed in range(3):
+        q, qd, tau, f_ext = random_state(model, seed)
+        assert_qdd_close(model, q, vdad.forward_dynamics(model, q, qd, tau, f_ext),
+                         mujoco_forward(m, d, q, qd, tau, f_ext), "DCA vs mj_forward, welded")
+    # geoms: the floor (a thin box whose top is the plane), the stand's, the mocap ball
+    env = {g.kind: g for g in report.environment.geoms}
+    assert [g.kind for g in report.environment.geoms] == ["box", "box", "sphere"]
+    np.testing.assert_allclose(report.environment.geoms[0].size, (3, 2, 0.005))
+    np.testing.assert_allclose(report.environment.geoms[0].pose.translation, (0, 0, -1.005))
+    np.testing.assert_allclose(env["sphere"].pose.translation, (1, 1, 1))
+    R, p = vdad.kinematics.world_poses(model, d.qpos)
+    placed = [(R[i] @ g.pose.matrix()[0], p[i] + R[i] @ g.pose.matrix()[1])
+              for i, b in enumerate(model.bodies) for g in b.geoms]
+    placed.insert(0, report.environment.geoms[1].pose.matrix())
+    mujoco.mj_forward(m, d)              # MuJoCo's geoms 1-4: stand_box, a's, b's, foot_box
+    for (Rg, pg), g in zip(placed, range(1, 5), strict=True):
+        np.testing.assert_allclose(pg, d.geom_xpos[g], atol=1e-12)
+        np.testing.assert_allclose(Rg, d.geom_xmat[g].reshape(3, 3), atol=1e-12)
+
+
+def test_a_massless_body_with_joints_is_refused_by_name():
+    xml = _xml('<body name="ghost"><joint name="gj"/><body name="c"><geom size="0.1"/>'
+               '</body></body>')
+    with pytest.raises(vdad.UnsupportedFeatureError, match="body 'ghost' has joints but no "
+                                                           "mass.*<inertial>"):
+        from_mujoco(mujoco.MjModel.from_xml_string(xml))
 
 
 def test_free_joint_below_a_body_is_unsupported():
@@ -358,20 +460,33 @@ def test_free_joint_below_a_body_is_unsupported():
         from_mujoco(m)
 
 
-def test_not_strict_drops_with_warnings():
-    xml = _xml('<body name="b"><joint name="j2" armature="0.1" frictionloss="0.2"/>'
-               '<geom size="0.1"/></body>',
-               '<equality><joint name="eq_lock" joint1="j1" joint2="j2"/></equality>'
-               '<tendon><fixed name="tend"><joint joint="j1" coef="1"/></fixed></tendon>'
-               '<actuator><motor name="mot" joint="j1"/></actuator>')
-    m = mujoco.MjModel.from_xml_string(xml)
-    with pytest.warns(UserWarning) as record:
-        model = from_mujoco(m, strict=False)
-    text = " ".join(str(w.message) for w in record)
-    for name in ("eq_lock", "tend", "mot", "frictionloss", "j2"):
-        assert name in text
-    assert model.nv == 2
-    np.testing.assert_array_equal(model.armature, [0.0, 0.1])         # armature is kept
+def test_mujocos_own_test_model_loads_by_default_with_mujocos_dynamics():
+    """The MJCF file that the mujoco package ships for its tests (ellipsoids, a
+    heightfield, armature, damping, springs, actuators, tendons, an equality
+    constraint, gravity compensation, fluid forces) loads with its defaults;
+    the report names what was left out; with those switched off in MuJoCo its
+    accelerations equal mj_forward's."""
+    path = os.path.join(os.path.dirname(mujoco.__file__), "testdata", "model.xml")
+    with pytest.warns(UserWarning, match="left out equality constraints"):
+        model, report = load_mjcf(path, report=True)
+    assert [f for f, *_ in report.left_out] == [
+        "equality constraints", "tendons", "actuators", "contacts", "fluid forces",
+        "gravity compensation", "geoms"]
+    assert len(report.left_out[2][1]) == 10 and report.left_out[6][1] == ("geom1",)
+    assert np.any(model.armature > 0) and report.environment.geoms
+    m = mujoco.MjModel.from_xml_path(path)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+                              | mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+    m.opt.density = m.opt.viscosity = 0.0
+    m.body_gravcomp[:] = 0.0
+    m.tendon_stiffness[:] = m.tendon_damping[:] = 0.0
+    with pytest.warns(UserWarning, match=r"left out geoms \('geom1'\)"):
+        assert [f for f, *_ in from_mujoco(m, report=True)[1].left_out] == ["geoms"]
+    d = mujoco.MjData(m)
+    for seed in range(3):
+        q, qd, tau, f_ext = random_state(model, seed)
+        assert_qdd_close(model, q, vdad.forward_dynamics(model, q, qd, tau, f_ext),
+                         mujoco_forward(m, d, q, qd, tau, f_ext), "DCA vs mj_forward")
 
 
 def test_to_pinocchio_refuses_armature_on_a_free_joint():

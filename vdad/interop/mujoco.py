@@ -27,10 +27,12 @@ from __future__ import annotations
 
 import os
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..checks import check_finite, check_flag, check_vector, reject_unknown, show
+from ..environment import Environment
 from ..errors import InputError, ModelError, UnsupportedFeatureError
 from ..joints import BALL, HINGE, TRANSLATION, Stage
 from ..model import Body, Geom, Joint, Model, Pose, check_model
@@ -75,45 +77,141 @@ def _check_mujoco(m, d=None, name="mjmodel"):
                          f"nv={m.nv}, nbody={m.nbody}; make it with mujoco.MjData(mjmodel)")
 
 
-def _unsupported(strict, message):
-    if strict:
-        raise UnsupportedFeatureError(message)
-    warnings.warn(message + " (dropped: strict=False)", stacklevel=3)
+#: the MuJoCo features that vdad leaves out of an imported model, and what each
+#: does in MuJoCo (the :class:`ImportReport`'s notes)
+LEFT_OUT = {
+    "equality constraints": "connect, weld and coupling constraints between bodies and "
+                            "joints: closed loops, which a tree algorithm cannot hold",
+    "tendons": "lengths coupling joints, with their springs, dampers, limits and actuators",
+    "actuators": "turn ctrl into joint forces: pass those forces as tau or a controller",
+    "contacts": "collisions between the model's geoms (a vdad scene adds FloorContact "
+                "for the ground)",
+    "fluid forces": "drag and lift from opt.density and opt.viscosity",
+    "frictionloss": "dry friction in joints",
+    "gravity compensation": "an upward force of body_gravcomp times a body's weight",
+    "geoms": "heightfields, SDFs and other geoms without vdad geometry: neither drawn nor "
+             "counted",
+}
 
 
-def _check_model_features(m, strict):
-    """Model-wide features vdad does not model (raise, or warn and drop)."""
+def names_text(names, most=3):
+    """``names`` for a one-line message: at most ``most`` quoted, then "and N more"."""
+    names = list(names)
+    shown = ", ".join(repr(n) for n in names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
+@dataclass(frozen=True)
+class ImportReport:
+    """What :func:`from_mujoco` left out of a model and what it changed.
+
+    ``left_out``: ``((feature, names, what it does in MuJoCo), ...)`` for the
+    features of :data:`LEFT_OUT` that the model uses (``names``: the equality
+    constraints, tendons, actuators, joints, bodies or geoms concerned);
+    ``welded``: names of massless bodies without joints merged into their parent
+    body or, below the world, into the environment (MuJoCo's own treatment: such
+    a body has no dynamics); ``environment``: the world's geoms, those of bodies
+    welded to the world and of mocap bodies (at their initial pose), as world
+    geometry (:class:`~vdad.environment.Environment`)."""
+
+    model_name: str
+    left_out: tuple = ()
+    welded: tuple = ()
+    environment: Environment = Environment()
+
+    def summary(self, hint="report=True lists what each does, strict=True refuses such "
+                           "models") -> str:
+        """One line: what was left out, then ``hint`` (what to do)."""
+        if not self.left_out:
+            return f"MuJoCo model {self.model_name!r}: imported in full"
+        parts = "; ".join(f"{feature} ({names_text(names)})" if names else feature
+                          for feature, names, _ in self.left_out)
+        return f"MuJoCo model {self.model_name!r}: left out {parts}; {hint}"
+
+    def __str__(self):
+        lines = [self.summary()]
+        for feature, names, note in self.left_out:
+            lines.append(f"  {feature}: {note}" + (f" [{len(names)}: {names_text(names, 8)}]"
+                                                   if names else ""))
+        if self.welded:
+            lines.append(f"  welded massless bodies without joints: {names_text(self.welded, 8)}")
+        if self.environment.geoms:
+            lines.append(f"  environment geometry: {len(self.environment.geoms)} geoms of the "
+                         f"world, of bodies welded to it and of mocap bodies")
+        return "\n".join(lines)
+
+
+def _names(m, objtype, ids, prefix):
+    return tuple(_name(m, objtype, int(i), prefix) for i in ids)
+
+
+def _left_out(m):
+    """``[(feature, names), ...]`` of the model-wide features vdad leaves out: those
+    that act on the dynamics with ``m.opt.disableflags`` as they are."""
     import mujoco
 
-    obj = mujoco.mjtObj
-    if m.neq > 0:
-        names = [_name(m, obj.mjOBJ_EQUALITY, i, "equality") for i in range(m.neq)]
-        _unsupported(strict, f"equality constraints are not supported: {names}")
-    if m.ntendon > 0:
-        names = [_name(m, obj.mjOBJ_TENDON, i, "tendon") for i in range(m.ntendon)]
-        _unsupported(strict, f"tendons are not supported: {names}")
-    if m.nu > 0:
-        names = [_name(m, obj.mjOBJ_ACTUATOR, i, "actuator") for i in range(m.nu)]
-        _unsupported(strict, f"actuators are not supported (pass joint forces as tau "
-                             f"instead): {names}")
+    obj, out = mujoco.mjtObj, []
+    flags, off = int(m.opt.disableflags), mujoco.mjtDisableBit
+    constraints = not flags & int(off.mjDSBL_CONSTRAINT)
+    if m.neq and constraints and not flags & int(off.mjDSBL_EQUALITY):
+        out.append(("equality constraints", _names(m, obj.mjOBJ_EQUALITY, range(m.neq),
+                                                   "equality")))
+    acting = ((m.tendon_stiffness > 0) & (not flags & int(off.mjDSBL_SPRING))
+              | (m.tendon_damping > 0) & (not flags & int(off.mjDSBL_DAMPER))
+              | (m.tendon_limited != 0) & constraints
+              | (m.tendon_frictionloss > 0) & constraints)
+    if np.any(acting):
+        out.append(("tendons", _names(m, obj.mjOBJ_TENDON, np.flatnonzero(acting), "tendon")))
+    if m.nu and not flags & int(off.mjDSBL_ACTUATION):
+        out.append(("actuators", _names(m, obj.mjOBJ_ACTUATOR, range(m.nu), "actuator")))
+    collide = np.flatnonzero((m.geom_contype != 0) | (m.geom_conaffinity != 0))
+    if constraints and not flags & int(off.mjDSBL_CONTACT) and len(collide) > 1:
+        out.append(("contacts", tuple(dict.fromkeys(
+            _name(m, obj.mjOBJ_BODY, int(m.geom_bodyid[g]), "body") for g in collide))))
     if m.opt.density > 0 or m.opt.viscosity > 0:
-        _unsupported(strict, f"fluid forces (density {m.opt.density}, viscosity "
-                             f"{m.opt.viscosity}) are not supported")
+        out.append(("fluid forces", ()))
+    friction = np.flatnonzero(m.dof_frictionloss != 0)
+    if len(friction) and constraints and not flags & int(off.mjDSBL_FRICTIONLOSS):
+        out.append(("frictionloss", tuple(dict.fromkeys(
+            _name(m, obj.mjOBJ_JOINT, int(m.dof_jntid[i]), "joint") for i in friction))))
+    gravcomp = np.flatnonzero(m.body_gravcomp != 0)
+    if len(gravcomp) and not flags & int(off.mjDSBL_GRAVITY):
+        out.append(("gravity compensation", _names(m, obj.mjOBJ_BODY, gravcomp, "body")))
+    return out
 
 
-def _geoms(m, b, body_name):
-    """vdad geometries of MuJoCo body ``b``, posed in the body frame."""
+def _kept(m):
+    """Whether each MuJoCo body (nbody,) becomes a vdad body: not the world, not a
+    mocap body, not a massless body without joints (those are welded)."""
+    keep = (m.body_mocapid < 0) & ((m.body_mass > 0) | (m.body_jntnum > 0))
+    keep[0] = False
+    return keep
+
+
+def _pose(offset, p, quat):
+    """The Pose ``offset`` (R, p) or None (identity) composed with ``(p, quat)``."""
+    if offset is None:
+        return Pose(tuple(float(x) for x in p), tuple(float(x) for x in quat))
+    R0, p0 = offset
+    R = quat_to_rot(np.asarray(quat, float))
+    return Pose(tuple((p0 + R0 @ np.asarray(p, float)).tolist()), R0 @ R)
+
+
+def _geoms(m, b, offset, skipped):
+    """vdad geometries of MuJoCo body ``b``, posed in the frame ``offset`` (R, p) or
+    None (the body's own); the names of geoms without vdad geometry go to
+    ``skipped``. A plane becomes a thin box (20 m where its size is 0)."""
     import mujoco
 
     gt = mujoco.mjtGeom
-    sphere, capsule, cylinder, box, ellipsoid, mesh_type = (int(x) for x in (
+    sphere, capsule, cylinder, box, ellipsoid, mesh_type, plane = (int(x) for x in (
         gt.mjGEOM_SPHERE, gt.mjGEOM_CAPSULE, gt.mjGEOM_CYLINDER, gt.mjGEOM_BOX,
-        gt.mjGEOM_ELLIPSOID, gt.mjGEOM_MESH))
+        gt.mjGEOM_ELLIPSOID, gt.mjGEOM_MESH, gt.mjGEOM_PLANE))
     out = []
     for g in range(m.body_geomadr[b], m.body_geomadr[b] + m.body_geomnum[b]):
         kind = int(m.geom_type[g])
         size = m.geom_size[g]
-        pose = Pose(tuple(m.geom_pos[g]), tuple(m.geom_quat[g]))
+        pose = _pose(offset, m.geom_pos[g], m.geom_quat[g])
         rgba = tuple(float(x) for x in m.geom_rgba[g])
         if kind == sphere:
             out.append(Geom("sphere", (float(size[0]),), pose, rgba=rgba))
@@ -122,6 +220,11 @@ def _geoms(m, b, body_name):
             out.append(Geom(name, (float(size[0]), float(size[1])), pose, rgba=rgba))
         elif kind == box:
             out.append(Geom("box", tuple(float(x) for x in size), pose, rgba=rgba))
+        elif kind == plane:
+            R, p = pose.matrix()
+            half = (float(size[0]) or 20.0, float(size[1]) or 20.0, 0.005)
+            out.append(Geom("box", half, Pose(tuple((p - 0.005 * R[:, 2]).tolist()), R),
+                            rgba=rgba))
         elif kind == ellipsoid:
             import trimesh
 
@@ -138,21 +241,20 @@ def _geoms(m, b, body_name):
                                    faces=np.array(m.mesh_face[f0:f0 + nf]), process=False)
             out.append(Geom("mesh", (), pose, mesh=mesh, rgba=rgba))
         else:
-            gname = _name(m, mujoco.mjtObj.mjOBJ_GEOM, g, "geom")
-            warnings.warn(f"body {body_name!r}: geom {gname!r} of type "
-                          f"{gt(kind).name} has no vdad geometry; skipped", stacklevel=3)
-    return tuple(out)
+            skipped.append(_name(m, mujoco.mjtObj.mjOBJ_GEOM, g, "geom"))
+    return out
 
 
 def _dof_value(values, adr, n, what, jname, body):
     v = values[adr:adr + n]
     if np.any(v != v[0]):
         raise UnsupportedFeatureError(f"joint {jname!r} of body {body!r}: {what} differs "
-                                      f"between its dofs ({v.tolist()})")
+                                      f"between its dofs ({v.tolist()}); vdad keeps one value "
+                                      f"per joint stage: make them equal in the MJCF")
     return float(v[0])
 
 
-def _joint_stages(m, b, body, taken, strict, spring_on, damper_on):
+def _joint_stages(m, b, body, taken, spring_on, damper_on):
     """(kind, stages, limits, name, free) of the joints of MuJoCo body ``b``."""
     import mujoco
 
@@ -168,28 +270,21 @@ def _joint_stages(m, b, body, taken, strict, spring_on, damper_on):
         kind = int(m.jnt_type[j])
         dof, qadr = m.jnt_dofadr[j], m.jnt_qposadr[j]
         ndof = {free_type: 6, ball_type: 3}.get(kind, 1)
-        val = m.dof_frictionloss[dof:dof + ndof]
-        if np.any(val != 0):
-            _unsupported(strict, f"joint {jname!r} of body {body!r}: nonzero frictionloss "
-                                 f"{val.tolist()} is not supported")
         arm = _dof_value(m.dof_armature, dof, ndof, "armature", jname, body)
         if np.any(m.jnt_stiffnesspoly[j] != 0) or np.any(m.dof_dampingpoly[dof:dof + ndof] != 0):
             raise UnsupportedFeatureError(f"joint {jname!r} of body {body!r}: polynomial "
-                                          f"stiffness or damping is not supported")
+                                          f"stiffness or damping is not supported; remove "
+                                          f"stiffnesspoly/dampingpoly from the MJCF")
         if m.jnt_springyield[j] > 0 and m.jnt_stiffness[j] > 0:
             raise UnsupportedFeatureError(f"joint {jname!r} of body {body!r}: plastic springs "
-                                          f"(springyield) are not supported")
+                                          f"(springyield) are not supported; remove "
+                                          f"springyield from the MJCF")
         k = float(m.jnt_stiffness[j]) if spring_on else 0.0
         d = _dof_value(m.dof_damping, dof, ndof, "damping", jname, body) if damper_on else 0.0
         anchor = tuple(float(x) for x in m.jnt_pos[j])
         axis = tuple(float(x) for x in m.jnt_axis[j])
         lim = (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])) if m.jnt_limited[j] else None
         if kind == free_type:
-            if m.body_parentid[b] != 0:
-                parent = _name(m, mujoco.mjtObj.mjOBJ_BODY, m.body_parentid[b], "body")
-                raise UnsupportedFeatureError(f"free joint {jname!r} of body {body!r} hangs "
-                                              f"below body {parent!r}; a free joint must join "
-                                              f"a body to the world")
             if nj > 1:
                 raise UnsupportedFeatureError(f"free joint {jname!r} of body {body!r} shares "
                                               f"its body with other joints")
@@ -220,8 +315,9 @@ def _joint_stages(m, b, body, taken, strict, spring_on, damper_on):
                                          else tuple(limits)), name, False
 
 
-def from_mujoco(m, *, strict=True) -> Model:
-    """A :class:`vdad.Model` of the compiled ``mujoco.MjModel`` ``m``.
+def from_mujoco(m, *, strict=False, report=False):
+    """A :class:`vdad.Model` of the compiled ``mujoco.MjModel`` ``m``, with the
+    rigid-body dynamics MuJoCo computes for it.
 
     Bodies keep MuJoCo's order (world body 0 skipped) and ``q``/``qd`` are
     ``qpos``/``qvel`` entry by entry. ``body_pos``/``body_quat`` become the joint
@@ -229,18 +325,23 @@ def from_mujoco(m, *, strict=True) -> Model:
     ``R diag(body_inertia) R^T`` with ``R`` of ``body_iquat`` the inertial data;
     ``jnt_stiffness``, ``dof_damping``, ``qpos_spring`` and ``opt.gravity`` the
     springs, dampers and gravity (zeroed where ``opt.disableflags`` disables
-    them); ranges of limited joints go to :attr:`vdad.Joint.limits` (a pair, or
-    one pair or None per stage of a composite joint; stored, not enforced).
+    them); ``dof_armature`` each stage's rotor inertia
+    (:attr:`vdad.Joint.armature`); ranges of limited joints go to
+    :attr:`vdad.Joint.limits` (a pair, or one pair or None per stage of a
+    composite joint; stored, not enforced). Massless bodies without joints
+    (sites, attachment frames, static floors) are welded into their parent body,
+    as MuJoCo treats them; mocap bodies and the world's geoms become environment
+    geometry.
 
-    ``dof_armature`` becomes each stage's rotor inertia (:attr:`vdad.Joint.armature`).
-
-    Raises :class:`vdad.UnsupportedFeatureError`, naming the culprit, on mocap
-    bodies, massless bodies, free joints below a body, armature or damping that
-    differs between the dofs of one joint, nonzero frictionloss, equality
-    constraints, tendons, actuators, fluid forces and gravity compensation. With
-    ``strict=False`` (a bool) tendons, actuators, equality constraints,
-    frictionloss, fluid forces and gravity
-    compensation are dropped with a warning instead.
+    What vdad cannot model (:data:`LEFT_OUT`: equality constraints, tendons,
+    actuators, contacts, fluid forces, frictionloss, gravity compensation, geoms
+    without vdad geometry) is left out with one warning that names it, or, with
+    ``strict=True``, refused with :class:`vdad.UnsupportedFeatureError`. With
+    ``report=True`` returns ``(model, ImportReport)``, the report listing what was
+    left out and welded and holding the environment geometry. Refused in any
+    case, naming the culprit: massless bodies with joints, free joints below a
+    body, armature or damping that differs between the dofs of one joint,
+    polynomial or plastic springs.
     """
     import mujoco
 
@@ -248,41 +349,61 @@ def from_mujoco(m, *, strict=True) -> Model:
         raise InputError(f"from_mujoco takes a compiled mujoco.MjModel, got "
                          f"{type(m).__name__}: {show(m)}; for an MJCF file use "
                          f"vdad.load_mjcf(path)")
-    strict = check_flag("strict", strict)
+    return _import(m, check_flag("strict", strict), check_flag("report", report), 3)
+
+
+def _import(m, strict, report, stacklevel):
+    """:func:`from_mujoco`, its warning ``stacklevel`` frames up (the user's call)."""
+    import mujoco
+
+    model_name = bytes(m.names).split(b"\0", 1)[0].decode() or "mujoco"
     obj = mujoco.mjtObj
-    _check_model_features(m, strict)
     flags = int(m.opt.disableflags)
     dsbl = mujoco.mjtDisableBit
     gravity = (np.zeros(3) if flags & int(dsbl.mjDSBL_GRAVITY) else np.array(m.opt.gravity, float))
     spring_on = not flags & int(dsbl.mjDSBL_SPRING)
     damper_on = not flags & int(dsbl.mjDSBL_DAMPER)
-    body_names, taken_bodies, taken_joints = [], set(), set()
-    bodies, joints = [], []
+    keep, skipped = _kept(m), []
+    # host[b]: the vdad body (or None, the world) that MuJoCo body b's frame is
+    # fixed to, at pose offset[b] (R, p) in it (None: b's own frame)
+    host, offset = [None] * m.nbody, [None] * m.nbody
+    names, taken_bodies, taken_joints = {}, set(), set()
+    parts, joints, welded = [], [], []
+    environment = _geoms(m, 0, None, skipped)
     for b in range(1, m.nbody):
         name = _unique(_name(m, obj.mjOBJ_BODY, b, "body"), taken_bodies)
-        body_names.append(name)
-        if m.body_mocapid[b] >= 0:
-            raise UnsupportedFeatureError(f"body {name!r} is a mocap body; vdad has no "
-                                          f"mocap bodies")
+        p = int(m.body_parentid[b])
+        if not keep[b]:                            # welded: to its parent's host
+            host[b] = host[p]
+            base = offset[p] if offset[p] is not None else (np.eye(3), np.zeros(3))
+            R = quat_to_rot(np.asarray(m.body_quat[b], float))
+            offset[b] = (base[0] @ R, base[1] + base[0] @ np.asarray(m.body_pos[b], float))
+            if m.body_mocapid[b] < 0:
+                welded.append(name)
+            geoms = _geoms(m, b, offset[b], skipped)
+            if host[b] is None:
+                environment += geoms
+            else:
+                parts[names[host[b]]][4].extend(geoms)
+            continue
         mass = float(m.body_mass[b])
         if not mass > 0:
-            raise UnsupportedFeatureError(f"body {name!r} has mass {mass}: every vdad body needs "
-                                          f"a positive mass; add an <inertial> element (or "
-                                          f"geoms with density) to it")
-        if m.body_gravcomp[b] != 0:
-            _unsupported(strict, f"body {name!r}: gravity compensation "
-                                 f"({m.body_gravcomp[b]}) is not supported")
+            raise UnsupportedFeatureError(f"body {name!r} has joints but no mass: every vdad "
+                                          f"body needs a positive mass; add an <inertial> "
+                                          f"element (or geoms with density) to it")
+        host[b], names[name] = name, len(parts)
         R = quat_to_rot(np.asarray(m.body_iquat[b], dtype=float))
         inertia = R @ np.diag(np.asarray(m.body_inertia[b], dtype=float)) @ R.T
-        bodies.append(Body(name, mass, tuple(float(x) for x in m.body_ipos[b]),
-                           0.5 * (inertia + inertia.T), _geoms(m, b, name)))
-        kind, stages, limits, jname, free = _joint_stages(m, b, name, taken_joints, strict,
+        parts.append((name, mass, tuple(float(x) for x in m.body_ipos[b]),
+                      0.5 * (inertia + inertia.T), _geoms(m, b, None, skipped)))
+        kind, stages, limits, jname, free = _joint_stages(m, b, name, taken_joints,
                                                           spring_on, damper_on)
-        placement = (Pose() if free else
-                     Pose(tuple(float(x) for x in m.body_pos[b]),
-                          tuple(float(x) for x in m.body_quat[b])))
-        p = m.body_parentid[b]
-        parent = None if p == 0 else body_names[p - 1]
+        parent = host[p]
+        if free and parent is not None:
+            raise UnsupportedFeatureError(f"free joint {jname!r} of body {name!r} hangs "
+                                          f"below body {parent!r}; a free joint must join "
+                                          f"a body to the world")
+        placement = Pose() if free else _pose(offset[p], m.body_pos[b], m.body_quat[b])
         if kind == "composite":
             joint = Joint(jname, parent, name, "composite", placement=placement,
                           stages=stages, limits=limits)
@@ -294,19 +415,29 @@ def from_mujoco(m, *, strict=True) -> Model:
                           stiffness=s.stiffness, damping=s.damping, limits=limits,
                           armature=s.armature)
         joints.append(joint)
-    if not bodies:
-        raise ModelError("the MuJoCo model has no bodies besides the world")
-    model_name = bytes(m.names).split(b"\0", 1)[0].decode()   # the model name comes first
-    return Model(bodies, joints, gravity=gravity, q_spring=np.array(m.qpos_spring, float),
-                 name=model_name or "mujoco")
+    if not parts:
+        raise ModelError(f"MuJoCo model {model_name!r} has no body with mass or joints "
+                         f"besides the world")
+    left_out = _left_out(m) + ([("geoms", tuple(skipped))] if skipped else [])
+    notes = ImportReport(model_name, tuple((f, n, LEFT_OUT[f]) for f, n in left_out),
+                         tuple(welded), Environment(tuple(environment)))
+    if left_out and strict:
+        raise UnsupportedFeatureError(notes.summary("strict=False leaves them out"))
+    if left_out:
+        warnings.warn(notes.summary(), UserWarning, stacklevel=stacklevel)
+    bodies = [Body(n, mass, com, inertia, tuple(geoms)) for n, mass, com, inertia, geoms in parts]
+    model = Model(bodies, joints, gravity=gravity, q_spring=np.array(m.qpos_spring, float),
+                  name=model_name)
+    return (model, notes) if report else model
 
 
-def load_mjcf(path, strict=True, **unknown) -> Model:
-    """:func:`from_mujoco` of the MJCF file ``path`` (``strict`` as there)."""
+def load_mjcf(path, strict=False, report=False, **unknown):
+    """:func:`from_mujoco` of the MJCF file ``path`` (``strict``, ``report`` as
+    there)."""
     import mujoco
 
-    reject_unknown("load_mjcf", unknown, ("path", "strict"))
-    strict = check_flag("strict", strict)
+    reject_unknown("load_mjcf", unknown, ("path", "strict", "report"))
+    strict, report = check_flag("strict", strict), check_flag("report", report)
     if not isinstance(path, (str, os.PathLike)):
         raise InputError(f"load_mjcf takes the path of an MJCF file, got "
                          f"{type(path).__name__}: {show(path)}")
@@ -317,7 +448,7 @@ def load_mjcf(path, strict=True, **unknown) -> Model:
         m = mujoco.MjModel.from_xml_path(path)
     except ValueError as exc:
         raise InputError(f"cannot load MJCF file {path!r}: {exc}") from None
-    return from_mujoco(m, strict=strict)
+    return _import(m, strict, report, 3)
 
 
 # --- export ----------------------------------------------------------------------------
@@ -466,14 +597,15 @@ def mujoco_layout(m):
 
     Returns ``body`` (nb,), ``qpos`` (nq,) and ``qvel`` (nv,): the MuJoCo body id of
     vdad body ``i`` and the ``qpos``/``qvel`` index of each vdad ``q``/``qd``
-    entry. Identity (``body = 1..nbody-1``) unless ``m`` came from :func:`to_mujoco`.
+    entry. MuJoCo's order (the bodies :func:`from_mujoco` keeps, welded ones
+    skipped) unless ``m`` came from :func:`to_mujoco`.
     """
     import mujoco
 
     _check_mujoco(m, name="m")
     nb = m.nbody - 1
     if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXT, LAYOUT_TEXT) < 0:
-        return np.arange(1, nb + 1), np.arange(m.nq), np.arange(m.nv)
+        return np.flatnonzero(_kept(m)), np.arange(m.nq), np.arange(m.nv)
     body = np.empty(nb, dtype=int)
     body[np.asarray(m.body_user[1:, 0]).round().astype(int)] = np.arange(1, nb + 1)
     qpos, qvel = [], []
@@ -532,5 +664,5 @@ def mujoco_forward(mjmodel, mjdata, q, qd, tau=None, f_ext=None):
     return np.array(d.qacc[qvel])
 
 
-__all__ = ["from_mujoco", "load_mjcf", "mujoco_forward", "mujoco_layout", "to_mjspec",
-           "to_mujoco"]
+__all__ = ["ImportReport", "LEFT_OUT", "from_mujoco", "load_mjcf", "mujoco_forward",
+           "mujoco_layout", "to_mjspec", "to_mujoco"]
