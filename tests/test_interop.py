@@ -333,12 +333,14 @@ LEFT_OUT_CASES = {
                                   '<equality><joint name="eq_lock" joint1="j1" joint2="j2"/>'
                                   '</equality>'), ("eq_lock",)),
     "tendons": (_xml('<body name="b"><joint name="j2"/><geom size="0.1"/></body>',
-                     '<tendon><fixed name="tend" stiffness="3"><joint joint="j1" coef="1"/>'
-                     '</fixed><fixed name="measured"><joint joint="j2" coef="1"/></fixed>'
-                     '</tendon>'), ("tend",)),
-    "actuators": (_xml("", "<actuator>" + "".join(f'<motor name="mot{i}" joint="j1"/>'
-                                                  for i in range(5)) + "</actuator>"),
-                  tuple(f"mot{i}" for i in range(5))),
+                     '<tendon><fixed name="tend" limited="true" range="-1 1">'
+                     '<joint joint="j1" coef="1"/></fixed><fixed name="sprung" stiffness="3">'
+                     '<joint joint="j2" coef="1"/></fixed><fixed name="measured">'
+                     '<joint joint="j2" coef="1"/></fixed></tendon>'), ("tend",)),
+    "actuators": (_xml("", "<actuator>" + "".join(
+        f'<general name="act{i}" joint="j1" dyntype="filter" dynprm="0.1"/>'
+        for i in range(5)) + '<motor name="imported" joint="j1"/></actuator>'),
+                  tuple(f"act{i}" for i in range(5))),
     "gravity compensation": ('<mujoco><worldbody><body name="a" gravcomp="1"><joint/>'
                              '<geom size="0.1"/></body></worldbody></mujoco>', ("a",)),
 }
@@ -377,10 +379,10 @@ def test_features_switched_off_in_mujoco_are_not_left_out():
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
                                   | mujoco.mjtDisableBit.mjDSBL_ACTUATION)
         assert from_mujoco(m, strict=True, report=True)[1].left_out == ()
-    m = mujoco.MjModel.from_xml_string(LEFT_OUT_CASES["tendons"][0])
-    m.tendon_stiffness[:] = 0.0
-    with pytest.warns(UserWarning, match=r"left out contacts \('a', 'b'\); report=True"):
-        assert [f for f, *_ in from_mujoco(m, report=True)[1].left_out] == ["contacts"]
+    m = mujoco.MjModel.from_xml_string(LEFT_OUT_CASES["tendons"][0])     # contacts on
+    with pytest.warns(UserWarning, match=r"left out tendons \('tend'\); contacts \('a', 'b'\)"):
+        assert [f for f, *_ in from_mujoco(m, report=True)[1].left_out] == ["tendons",
+                                                                             "contacts"]
 
 
 WELDED = """
@@ -472,21 +474,103 @@ def test_mujocos_own_test_model_loads_by_default_with_mujocos_dynamics():
     assert [f for f, *_ in report.left_out] == [
         "equality constraints", "tendons", "actuators", "contacts", "fluid forces",
         "gravity compensation", "geoms"]
-    assert len(report.left_out[2][1]) == 10 and report.left_out[6][1] == ("geom1",)
-    assert np.any(model.armature > 0) and report.environment.geoms
+    left = report.left_out[2][1]
+    assert left == ("actuator1", "actuator6", "actuator7", "actuator8", "actuator9")
+    assert report.left_out[1][1] == ("spatial",) and report.left_out[6][1] == ("geom1",)
+    assert len(report.actuation.names) == 5 and np.any(model.armature > 0)
+    assert report.environment.geoms
     m = mujoco.MjModel.from_xml_path(path)
-    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-                              | mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
     m.opt.density = m.opt.viscosity = 0.0
     m.body_gravcomp[:] = 0.0
-    m.tendon_stiffness[:] = m.tendon_damping[:] = 0.0
-    with pytest.warns(UserWarning, match=r"left out geoms \('geom1'\)"):
-        assert [f for f, *_ in from_mujoco(m, report=True)[1].left_out] == ["geoms"]
+    dropped = np.setdiff1d(np.arange(m.nu), report.actuation.ids)        # unnamed there
+    m.actuator_gainprm[dropped] = m.actuator_biasprm[dropped] = 0.0
+    assert_matches_mujoco_with_controls(m, model, report.actuation)
+
+
+def assert_matches_mujoco_with_controls(m, model, actuation, seeds=range(3)):
+    """vdad's accelerations with ``actuation`` at random controls (some beyond
+    their ranges) equal mj_forward's with the same ``ctrl``."""
     d = mujoco.MjData(m)
-    for seed in range(3):
+    for seed in seeds:
         q, qd, tau, f_ext = random_state(model, seed)
-        assert_qdd_close(model, q, vdad.forward_dynamics(model, q, qd, tau, f_ext),
-                         mujoco_forward(m, d, q, qd, tau, f_ext), "DCA vs mj_forward")
+        ctrl = np.random.default_rng(seed).normal(scale=2.0, size=m.nu)
+        actuation.set_ctrl(ctrl[actuation.ids])
+        total = tau.copy()
+        actuation.tau(0.0, q, qd, total)
+        expected = mujoco_forward(m, d, q, qd, tau, f_ext)       # ctrl zeroed there
+        d.ctrl[:] = ctrl
+        mujoco.mj_forward(m, d)
+        assert d.nefc == 0
+        np.testing.assert_allclose(total - tau, d.qfrc_actuator + d.qfrc_passive
+                                   - vdad.passive_forces(model, q, qd), rtol=0,
+                                   atol=C * EPS * max(1.0, np.abs(total).max()))
+        # the accelerations: the reference ABA to 100 cond(M) eps; the DCA, whose
+        # formulation loses up to 5e3 eps relative to |qdd| on ACTUATED even without
+        # actuators (issue "Numerically hard cases"), to 1e4 cond(M) eps
+        assert_qdd_close(model, q, aba(model, q, qd, total, f_ext), d.qacc,
+                         f"reference ABA with actuation vs mj_forward, seed {seed}")
+        qdd = vdad.forward_dynamics(model, q, qd, total, f_ext)
+        err, scale = np.abs(qdd - d.qacc).max(), max(1.0, np.abs(qdd).max())
+        assert err <= 1e4 * np.linalg.cond(crba(model, q)) * EPS * scale, (
+            f"DCA with actuation vs mj_forward, seed {seed}: {err:.3e}")
+        assert not np.allclose(expected, d.qacc)                  # the controls act
+
+
+ACTUATED = """
+<mujoco model="actuated">
+  <option><flag contact="disable"/></option>
+  <worldbody>
+    <body name="a"><joint name="j1" axis="0 1 0" actuatorfrclimited="true"
+                          actuatorfrcrange="-3 3"/>
+      <geom size="0.1" pos="0 0 -0.2"/>
+      <body name="b" pos="0 0 -0.4"><joint name="j2" axis="1 0 0" springref="0.2"/>
+        <geom type="capsule" size="0.1 0.2"/>
+        <body name="c" pos="0 0 -0.4"><joint name="s3" type="slide" axis="0 0 1"/>
+          <geom type="box" size="0.1 0.1 0.1"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <tendon>
+    <fixed name="t_spring" stiffness="7" springlength="-0.1 0.2" damping="0.4">
+      <joint joint="j1" coef="1"/><joint joint="j2" coef="-0.5"/>
+    </fixed>
+    <fixed name="t_drive"><joint joint="j2" coef="2"/><joint joint="s3" coef="1"/></fixed>
+  </tendon>
+  <actuator>
+    <motor name="m1" joint="j1" gear="2"/>
+    <position name="p2" joint="j2" kp="30" ctrlrange="-0.5 0.5" gear="1.5"/>
+    <velocity name="v3" joint="s3" kv="4" forcerange="-0.2 0.2"/>
+    <general name="g4" tendon="t_drive" gaintype="affine" gainprm="2 0.5 0.1"
+             biastype="affine" biasprm="0.3 -1 -0.2" gear="0.7"/>
+    <motor name="m5" tendon="t_spring" gear="3"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def test_actuators_and_fixed_tendons_act_as_in_mujoco():
+    """Motor, position, velocity and affine general actuators with gears on hinges,
+    a slide and fixed tendons, clamped controls, a force range and a joint's
+    actuator-force range, and a fixed tendon's spring (with a dead band) and
+    damper: the joint forces of :class:`Actuation` give mj_forward's accelerations."""
+    m = mujoco.MjModel.from_xml_string(ACTUATED)
+    model, report = from_mujoco(m, strict=True, report=True)
+    assert report.left_out == () and report.actuation.names == ("m1", "p2", "v3", "g4", "m5")
+    np.testing.assert_array_equal(report.actuation.ids, range(5))
+    assert_matches_mujoco_with_controls(m, model, report.actuation, range(6))
+    act = report.actuation
+    q = np.zeros(model.nq)
+    q[:2] = (0.5, 0.1)                              # t_spring length 0.45: 0.25 past 0.2
+    assert act.energy(q) == pytest.approx(0.5 * 7 * 0.25**2)
+    with pytest.raises(vdad.InputError, match=r"ctrl must have shape \(5,\)"):
+        act.set_ctrl([1.0])
+    forces = vdad.forces.Forces(model, [act])
+    sim = vdad.Simulator(model, controller=forces.controller)
+    act.set_ctrl([1, 0.2, -1, 0.5, 0.1])
+    sim.step(20)
+    assert np.all(np.isfinite(sim.q)) and np.any(sim.q != 0)
 
 
 def test_to_pinocchio_refuses_armature_on_a_free_joint():

@@ -37,6 +37,7 @@ from ..errors import InputError, ModelError, UnsupportedFeatureError
 from ..joints import BALL, HINGE, TRANSLATION, Stage
 from ..model import Body, Geom, Joint, Model, Pose, check_model
 from ..spatial import quat_to_rot, rot_to_quat
+from .actuation import Actuation
 
 LAYOUT_TEXT = "vdad_layout"
 _XFRC_FROM_FEXT = [3, 4, 5, 0, 1, 2]
@@ -82,8 +83,11 @@ def _check_mujoco(m, d=None, name="mjmodel"):
 LEFT_OUT = {
     "equality constraints": "connect, weld and coupling constraints between bodies and "
                             "joints: closed loops, which a tree algorithm cannot hold",
-    "tendons": "lengths coupling joints, with their springs, dampers, limits and actuators",
-    "actuators": "turn ctrl into joint forces: pass those forces as tau or a controller",
+    "tendons": "spatial tendons (paths through sites and geoms), and the limits, friction "
+               "and armature of fixed tendons (their springs, dampers and actuators are "
+               "imported)",
+    "actuators": "activation dynamics, muscles, and transmissions other than hinges, slides "
+                 "and fixed tendons (the others are imported: ImportReport.actuation)",
     "contacts": "collisions between the model's geoms (a vdad scene adds FloorContact "
                 "for the ground)",
     "fluid forces": "drag and lift from opt.density and opt.viscosity",
@@ -112,12 +116,16 @@ class ImportReport:
     body or, below the world, into the environment (MuJoCo's own treatment: such
     a body has no dynamics); ``environment``: the world's geoms, those of bodies
     welded to the world and of mocap bodies (at their initial pose), as world
-    geometry (:class:`~vdad.environment.Environment`)."""
+    geometry (:class:`~vdad.environment.Environment`); ``actuation``: the
+    imported actuators and fixed-tendon springs and dampers as a force element
+    (:class:`~vdad.interop.actuation.Actuation`; None without any): add it to a
+    :class:`~vdad.forces.Forces` and set its ``ctrl``."""
 
     model_name: str
     left_out: tuple = ()
     welded: tuple = ()
     environment: Environment = Environment()
+    actuation: object = None
 
     def summary(self, hint="report=True lists what each does, strict=True refuses such "
                            "models") -> str:
@@ -135,6 +143,10 @@ class ImportReport:
                                                    if names else ""))
         if self.welded:
             lines.append(f"  welded massless bodies without joints: {names_text(self.welded, 8)}")
+        if self.actuation is not None:
+            lines.append(f"  imported: {len(self.actuation.names)} actuators and "
+                         f"{len(self.actuation.tendon_k)} fixed tendons' springs and dampers "
+                         f"(ImportReport.actuation)")
         if self.environment.geoms:
             lines.append(f"  environment geometry: {len(self.environment.geoms)} geoms of the "
                          f"world, of bodies welded to it and of mocap bodies")
@@ -145,9 +157,11 @@ def _names(m, objtype, ids, prefix):
     return tuple(_name(m, objtype, int(i), prefix) for i in ids)
 
 
-def _left_out(m):
+def _left_out(m, actuators, sprung):
     """``[(feature, names), ...]`` of the model-wide features vdad leaves out: those
-    that act on the dynamics with ``m.opt.disableflags`` as they are."""
+    that act on the dynamics with ``m.opt.disableflags`` as they are; the
+    ``actuators`` that :class:`~vdad.interop.actuation.Actuation` left out, and
+    the ids of the fixed tendons whose springs and dampers it holds, ``sprung``."""
     import mujoco
 
     obj, out = mujoco.mjtObj, []
@@ -156,14 +170,15 @@ def _left_out(m):
     if m.neq and constraints and not flags & int(off.mjDSBL_EQUALITY):
         out.append(("equality constraints", _names(m, obj.mjOBJ_EQUALITY, range(m.neq),
                                                    "equality")))
-    acting = ((m.tendon_stiffness > 0) & (not flags & int(off.mjDSBL_SPRING))
-              | (m.tendon_damping > 0) & (not flags & int(off.mjDSBL_DAMPER))
-              | (m.tendon_limited != 0) & constraints
-              | (m.tendon_frictionloss > 0) & constraints)
+    passive = ((m.tendon_stiffness > 0) & (not flags & int(off.mjDSBL_SPRING))
+               | (m.tendon_damping > 0) & (not flags & int(off.mjDSBL_DAMPER)))
+    passive[sprung] = False
+    acting = (passive | (m.tendon_limited != 0) & constraints
+              | (m.tendon_frictionloss > 0) & constraints | (m.tendon_armature != 0))
     if np.any(acting):
         out.append(("tendons", _names(m, obj.mjOBJ_TENDON, np.flatnonzero(acting), "tendon")))
-    if m.nu and not flags & int(off.mjDSBL_ACTUATION):
-        out.append(("actuators", _names(m, obj.mjOBJ_ACTUATOR, range(m.nu), "actuator")))
+    if actuators and not flags & int(off.mjDSBL_ACTUATION):
+        out.append(("actuators", actuators))
     collide = np.flatnonzero((m.geom_contype != 0) | (m.geom_conaffinity != 0))
     if constraints and not flags & int(off.mjDSBL_CONTACT) and len(collide) > 1:
         out.append(("contacts", tuple(dict.fromkeys(
@@ -418,16 +433,18 @@ def _import(m, strict, report, stacklevel):
     if not parts:
         raise ModelError(f"MuJoCo model {model_name!r} has no body with mass or joints "
                          f"besides the world")
-    left_out = _left_out(m) + ([("geoms", tuple(skipped))] if skipped else [])
+    bodies = [Body(n, mass, com, inertia, tuple(geoms)) for n, mass, com, inertia, geoms in parts]
+    model = Model(bodies, joints, gravity=gravity, q_spring=np.array(m.qpos_spring, float),
+                  name=model_name)
+    actuation, actuators, sprung = Actuation.of(m, model, spring_on, damper_on)
+    left_out = (_left_out(m, actuators, sprung)
+                + ([("geoms", tuple(skipped))] if skipped else []))
     notes = ImportReport(model_name, tuple((f, n, LEFT_OUT[f]) for f, n in left_out),
-                         tuple(welded), Environment(tuple(environment)))
+                         tuple(welded), Environment(tuple(environment)), actuation)
     if left_out and strict:
         raise UnsupportedFeatureError(notes.summary("strict=False leaves them out"))
     if left_out:
         warnings.warn(notes.summary(), UserWarning, stacklevel=stacklevel)
-    bodies = [Body(n, mass, com, inertia, tuple(geoms)) for n, mass, com, inertia, geoms in parts]
-    model = Model(bodies, joints, gravity=gravity, q_spring=np.array(m.qpos_spring, float),
-                  name=model_name)
     return (model, notes) if report else model
 
 
