@@ -341,8 +341,6 @@ LEFT_OUT_CASES = {
         f'<general name="act{i}" joint="j1" dyntype="filter" dynprm="0.1"/>'
         for i in range(5)) + '<motor name="imported" joint="j1"/></actuator>'),
                   tuple(f"act{i}" for i in range(5))),
-    "gravity compensation": ('<mujoco><worldbody><body name="a" gravcomp="1"><joint/>'
-                             '<geom size="0.1"/></body></worldbody></mujoco>', ("a",)),
 }
 
 
@@ -472,25 +470,27 @@ def test_mujocos_own_test_model_loads_by_default_with_mujocos_dynamics():
     with pytest.warns(UserWarning, match="left out equality constraints"):
         model, report = load_mjcf(path, report=True)
     assert [f for f, *_ in report.left_out] == [
-        "equality constraints", "tendons", "actuators", "contacts", "fluid forces",
-        "gravity compensation", "geoms"]
+        "equality constraints", "tendons", "actuators", "contacts", "fluid forces", "geoms"]
     left = report.left_out[2][1]
     assert left == ("actuator1", "actuator6", "actuator7", "actuator8", "actuator9")
-    assert report.left_out[1][1] == ("spatial",) and report.left_out[6][1] == ("geom1",)
+    assert report.left_out[1][1] == ("spatial",) and report.left_out[5][1] == ("geom1",)
+    assert report.gravcomp.bodies.tolist() == [0] and report.forces[1] is report.gravcomp
+    np.testing.assert_array_equal(report.q0[:3], (0, 0, 0.7))           # the head's pos
+    assert report.dt == 0.002
     assert len(report.actuation.names) == 5 and np.any(model.armature > 0)
     assert report.environment.geoms
     m = mujoco.MjModel.from_xml_path(path)
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
     m.opt.density = m.opt.viscosity = 0.0
-    m.body_gravcomp[:] = 0.0
     dropped = np.setdiff1d(np.arange(m.nu), report.actuation.ids)        # unnamed there
     m.actuator_gainprm[dropped] = m.actuator_biasprm[dropped] = 0.0
-    assert_matches_mujoco_with_controls(m, model, report.actuation)
+    assert_matches_mujoco_with_controls(m, model, report.actuation, report.gravcomp)
 
 
-def assert_matches_mujoco_with_controls(m, model, actuation, seeds=range(3)):
+def assert_matches_mujoco_with_controls(m, model, actuation, gravcomp=None, seeds=range(3)):
     """vdad's accelerations with ``actuation`` at random controls (some beyond
-    their ranges) equal mj_forward's with the same ``ctrl``."""
+    their ranges), and ``gravcomp`` if given, equal mj_forward's with the same
+    ``ctrl``."""
     d = mujoco.MjData(m)
     for seed in seeds:
         q, qd, tau, f_ext = random_state(model, seed)
@@ -498,11 +498,15 @@ def assert_matches_mujoco_with_controls(m, model, actuation, seeds=range(3)):
         actuation.set_ctrl(ctrl[actuation.ids])
         total = tau.copy()
         actuation.tau(0.0, q, qd, total)
+        if gravcomp is not None:
+            f_ext = f_ext.copy()
+            f_ext[gravcomp.bodies] += gravcomp.wrenches(0.0, None)
         expected = mujoco_forward(m, d, q, qd, tau, f_ext)       # ctrl zeroed there
         d.ctrl[:] = ctrl
         mujoco.mj_forward(m, d)
         assert d.nefc == 0
-        np.testing.assert_allclose(total - tau, d.qfrc_actuator + d.qfrc_passive
+        passive = d.qfrc_passive - d.qfrc_gravcomp           # gravcomp: in f_ext above
+        np.testing.assert_allclose(total - tau, d.qfrc_actuator + passive
                                    - vdad.passive_forces(model, q, qd), rtol=0,
                                    atol=C * EPS * max(1.0, np.abs(total).max()))
         # the accelerations: the reference ABA to 100 cond(M) eps; the DCA, whose
@@ -559,7 +563,7 @@ def test_actuators_and_fixed_tendons_act_as_in_mujoco():
     model, report = from_mujoco(m, strict=True, report=True)
     assert report.left_out == () and report.actuation.names == ("m1", "p2", "v3", "g4", "m5")
     np.testing.assert_array_equal(report.actuation.ids, range(5))
-    assert_matches_mujoco_with_controls(m, model, report.actuation, range(6))
+    assert_matches_mujoco_with_controls(m, model, report.actuation, seeds=range(6))
     act = report.actuation
     q = np.zeros(model.nq)
     q[:2] = (0.5, 0.1)                              # t_spring length 0.45: 0.25 past 0.2

@@ -150,3 +150,31 @@ class Actuation:
     def energy(self, q):
         """Energy stored in the tendons' springs (actuators store none)."""
         return float(np.sum(self.tendon_k * self._stretch(self.tendon_q @ q) ** 2)) / 2
+
+
+class GravityCompensation:
+    """MuJoCo's gravity compensation (``body_gravcomp``) as a wrench element of
+    :class:`vdad.forces.Forces`: body ``i`` of ``bodies`` feels the force
+    ``-gravcomp_i m_i g`` at its centre of mass (``mj_passive``), a constant
+    wrench that needs no body state."""
+
+    needs_states = False
+
+    def __init__(self, model, bodies, gravcomp):
+        self.model, self.bodies = model, np.asarray(bodies, np.int64)
+        self.gravcomp = np.asarray(gravcomp, float)
+        self._f = np.zeros((len(self.bodies), 6))          # torque about the com, force
+        self._f[:, 3:] = -(self.gravcomp * model.mass[self.bodies])[:, None] * model.gravity
+
+    @classmethod
+    def of(cls, m, model, index):
+        """The gravity compensation of the compiled ``mujoco.MjModel`` ``m``
+        imported as ``model``, ``index`` (nbody,) the vdad body of each MuJoCo
+        body (-1: none); None where no body has any or gravity is off."""
+        ids = np.flatnonzero((m.body_gravcomp != 0) & (index >= 0))
+        if not np.any(model.gravity) or not len(ids):
+            return None
+        return cls(model, index[ids], m.body_gravcomp[ids])
+
+    def wrenches(self, t, states):
+        return self._f.copy()

@@ -37,7 +37,7 @@ from ..errors import InputError, ModelError, UnsupportedFeatureError
 from ..joints import BALL, HINGE, TRANSLATION, Stage
 from ..model import Body, Geom, Joint, Model, Pose, check_model
 from ..spatial import quat_to_rot, rot_to_quat
-from .actuation import Actuation
+from .actuation import Actuation, GravityCompensation
 
 LAYOUT_TEXT = "vdad_layout"
 _XFRC_FROM_FEXT = [3, 4, 5, 0, 1, 2]
@@ -92,7 +92,6 @@ LEFT_OUT = {
                 "for the ground)",
     "fluid forces": "drag and lift from opt.density and opt.viscosity",
     "frictionloss": "dry friction in joints",
-    "gravity compensation": "an upward force of body_gravcomp times a body's weight",
     "geoms": "heightfields, SDFs and other geoms without vdad geometry: neither drawn nor "
              "counted",
 }
@@ -118,14 +117,26 @@ class ImportReport:
     welded to the world and of mocap bodies (at their initial pose), as world
     geometry (:class:`~vdad.environment.Environment`); ``actuation``: the
     imported actuators and fixed-tendon springs and dampers as a force element
-    (:class:`~vdad.interop.actuation.Actuation`; None without any): add it to a
-    :class:`~vdad.forces.Forces` and set its ``ctrl``."""
+    (:class:`~vdad.interop.actuation.Actuation`; None without any): set its
+    ``ctrl``; ``gravcomp``: the gravity compensation as a force element
+    (:class:`~vdad.interop.actuation.GravityCompensation`; None without any);
+    ``q0``, ``dt``: MuJoCo's initial configuration ``qpos0`` (a free body where
+    the MJCF puts it) and time step ``opt.timestep``."""
 
     model_name: str
     left_out: tuple = ()
     welded: tuple = ()
     environment: Environment = Environment()
     actuation: object = None
+    gravcomp: object = None
+    q0: tuple = ()
+    dt: float = 0.002
+
+    @property
+    def forces(self) -> tuple:
+        """The imported force elements (:attr:`actuation`, :attr:`gravcomp`), for
+        ``vdad.forces.Forces(model, report.forces)``."""
+        return tuple(e for e in (self.actuation, self.gravcomp) if e is not None)
 
     def summary(self, hint="report=True lists what each does, strict=True refuses such "
                            "models") -> str:
@@ -147,6 +158,9 @@ class ImportReport:
             lines.append(f"  imported: {len(self.actuation.names)} actuators and "
                          f"{len(self.actuation.tendon_k)} fixed tendons' springs and dampers "
                          f"(ImportReport.actuation)")
+        if self.gravcomp is not None:
+            lines.append(f"  imported: gravity compensation of {len(self.gravcomp.bodies)} "
+                         f"bodies (ImportReport.gravcomp)")
         if self.environment.geoms:
             lines.append(f"  environment geometry: {len(self.environment.geoms)} geoms of the "
                          f"world, of bodies welded to it and of mocap bodies")
@@ -189,9 +203,6 @@ def _left_out(m, actuators, sprung):
     if len(friction) and constraints and not flags & int(off.mjDSBL_FRICTIONLOSS):
         out.append(("frictionloss", tuple(dict.fromkeys(
             _name(m, obj.mjOBJ_JOINT, int(m.dof_jntid[i]), "joint") for i in friction))))
-    gravcomp = np.flatnonzero(m.body_gravcomp != 0)
-    if len(gravcomp) and not flags & int(off.mjDSBL_GRAVITY):
-        out.append(("gravity compensation", _names(m, obj.mjOBJ_BODY, gravcomp, "body")))
     return out
 
 
@@ -346,14 +357,17 @@ def from_mujoco(m, *, strict=False, report=False):
     composite joint; stored, not enforced). Massless bodies without joints
     (sites, attachment frames, static floors) are welded into their parent body,
     as MuJoCo treats them; mocap bodies and the world's geoms become environment
-    geometry.
+    geometry. Actuators (without activation dynamics, on hinges, slides and fixed
+    tendons), fixed tendons' springs and dampers and gravity compensation become
+    force elements (:mod:`vdad.interop.actuation`).
 
-    What vdad cannot model (:data:`LEFT_OUT`: equality constraints, tendons,
-    actuators, contacts, fluid forces, frictionloss, gravity compensation, geoms
-    without vdad geometry) is left out with one warning that names it, or, with
-    ``strict=True``, refused with :class:`vdad.UnsupportedFeatureError`. With
-    ``report=True`` returns ``(model, ImportReport)``, the report listing what was
-    left out and welded and holding the environment geometry. Refused in any
+    What vdad cannot model (:data:`LEFT_OUT`: equality constraints, spatial
+    tendons and fixed tendons' limits, other actuators, contacts, fluid forces,
+    frictionloss, geoms without vdad geometry) is left out with one warning that
+    names it, or, with ``strict=True``, refused with
+    :class:`vdad.UnsupportedFeatureError`. With ``report=True`` returns ``(model,
+    ImportReport)``, the report listing what was left out and welded and holding
+    the environment geometry, the force elements, ``qpos0`` and the time step. Refused in any
     case, naming the culprit: massless bodies with joints, free joints below a
     body, armature or damping that differs between the dofs of one joint,
     polynomial or plastic springs.
@@ -437,10 +451,13 @@ def _import(m, strict, report, stacklevel):
     model = Model(bodies, joints, gravity=gravity, q_spring=np.array(m.qpos_spring, float),
                   name=model_name)
     actuation, actuators, sprung = Actuation.of(m, model, spring_on, damper_on)
+    index = np.array([names.get(host[b], -1) if keep[b] else -1 for b in range(m.nbody)])
     left_out = (_left_out(m, actuators, sprung)
                 + ([("geoms", tuple(skipped))] if skipped else []))
     notes = ImportReport(model_name, tuple((f, n, LEFT_OUT[f]) for f, n in left_out),
-                         tuple(welded), Environment(tuple(environment)), actuation)
+                         tuple(welded), Environment(tuple(environment)), actuation,
+                         GravityCompensation.of(m, model, index), tuple(m.qpos0.tolist()),
+                         float(m.opt.timestep))
     if left_out and strict:
         raise UnsupportedFeatureError(notes.summary("strict=False leaves them out"))
     if left_out:
