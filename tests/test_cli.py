@@ -4,6 +4,7 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -62,6 +63,7 @@ def test_help(argv, capsys):
     (["run", "pendulum", "--steps", "0"], "--steps: must be a positive integer"),
     (["run", "pendulum", "--dt", "nan"], "--dt: must be a positive number"),
     (["run", "box"], "invalid choice: 'box'"),
+    (["run", "nowhere/robot.xml"], "MuJoCo model file not found: nowhere/robot.xml"),
 ])
 def test_bad_arguments(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -204,6 +206,8 @@ def test_run_every_scene(argv, tmp_path):
 @pytest.mark.parametrize("argv, message", [
     (["run", "dog_puppet", "--bodies", "3"], "scene 'dog_puppet' does not take --bodies"),
     (["run", "pendulum", "--dogs", "3"], "scene 'pendulum' does not take --dogs"),
+    (["run", str(Path(__file__).parent / "data" / "arm.xml"), "--bodies", "3"],
+     "arm.xml' does not take --bodies"),
     (["render", "pendulum", "--out", "x.bmp", "--steps", "1"], "suffix must be one of"),
 ])
 def test_scene_option_errors(argv, message, capsys, tmp_path, monkeypatch):
@@ -285,3 +289,34 @@ def test_baseline_option_errors(argv, message, capsys):
 ])
 def test_errors_in_cli_terms(message, expected):
     assert in_cli_terms(message) == expected
+
+
+ARM = str(Path(__file__).parent / "data" / "arm.xml")
+
+
+@pytest.mark.parametrize("method", ["dca", "adaptive", "view-bvh", "view-oq", "lod-distance",
+                                    "sleeping"])
+def test_run_a_mujoco_model_file_with_each_method(method, tmp_path):
+    out = tmp_path / "arm.json"
+    assert main(["run", ARM, "--method", method, "--steps", "30", "--json", str(out),
+                 "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert data["scene"] == "arm" and data["bodies"] == 3 and data["dofs"] == 5
+    assert data["steps"] == 30 and data["params"]["path"] == ARM
+    assert data["final_q"] != mujoco_qpos0()
+
+
+def mujoco_qpos0():
+    import mujoco
+
+    return mujoco.MjModel.from_xml_path(ARM).qpos0.tolist()
+
+
+def test_render_a_mujoco_model_file(tmp_path):
+    from PIL import Image
+
+    out = tmp_path / "arm.png"
+    assert main(["render", ARM, "--steps", "20", "--strip", "2", "--size", "80x60",
+                 "--out", str(out), "--no-progress"]) == 0
+    with Image.open(out) as strip:
+        assert strip.size[0] >= 2 * 80

@@ -2,12 +2,15 @@
 seeded repeatability, and the behaviour each scene must show."""
 
 from dataclasses import replace
+from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
 from vdad import Simulator
 from vdad.errors import InputError
+from vdad.kinematics import world_poses
 from vdad.quantities import kinetic_energy
 from vdad.scenes import (
     SCENES,
@@ -20,6 +23,7 @@ from vdad.scenes import (
     toy_dog,
 )
 from vdad.scenes.dogs import LEGS, PUPPET_PHASES, StickPath, default_stick_path
+from vdad.scenes.mjcf import mjcf_scene
 from vdad.simulator import DEFAULTS, LOD_PIXELS, METHODS, lod_distance
 
 SMALL = {"pendulum": lambda: pendulum(n_bodies=20),
@@ -406,3 +410,34 @@ def test_a_rigid_character_still_falls():
     sim.step(1000)
     assert max(s.active_joints for s in sim.history[10:]) < scene.model.nb
     assert sim.q[2] < 0.3 * scene.q0[2]
+
+
+ARM = Path(__file__).parent / "data" / "arm.xml"
+
+
+def test_a_mujoco_model_file_is_a_scene_with_its_forces_limits_and_a_framing_camera():
+    """``mjcf_scene``: MuJoCo's qpos0 and time step, the imported actuators,
+    tendon and gravity compensation and the joint ranges as force elements, the
+    floor, stand and mocap target as environment, and a camera that has every
+    body in view; it runs with every method."""
+    scene = mjcf_scene(ARM)
+    m = mujoco.MjModel.from_xml_path(str(ARM))
+    assert scene.model.body_names == ("upper", "fore", "hand") and scene.dt == 0.004
+    np.testing.assert_array_equal(scene.q0, m.qpos0)
+    kinds = [type(e).__name__ for e in scene.forces.elements]
+    assert kinds == ["Actuation", "GravityCompensation", "JointLimits"]
+    limits = scene.forces.elements[2]
+    assert limits.angle.tolist() == [1.2] and limits.low.tolist() == [-2.0, -0.05]
+    assert len(scene.environment.geoms) == 3                   # floor, stand, target
+    R, p = world_poses(scene.model, scene.q0)
+    xy, depth = scene.camera.project(p)
+    assert np.all(depth > scene.camera.znear)
+    assert np.all((xy > 0) & (xy < (scene.camera.width, scene.camera.height)))
+    far = mjcf_scene(ARM, camera_distance=20.0, dt=0.001, resolution=(64, 48))
+    assert np.linalg.norm(np.subtract(far.camera.position, far.camera.target)) == \
+        pytest.approx(20.0) and far.dt == 0.001 and far.camera.width == 64
+    scene.forces.elements[0].set_ctrl([1.0, 0.02])
+    for method in METHODS:
+        sim = scene.simulator(method=method)
+        sim.step(25)
+        assert np.all(np.isfinite(sim.q)) and sim.q[4] != scene.q0[4]     # the elbow moves

@@ -7,7 +7,9 @@ Every command has ``--help``; results go to plain files (JSON, PNG, GIF, MP4).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import os
 import sys
 
 import numpy as np
@@ -44,11 +46,27 @@ def _resolution(text):
     return w, h
 
 
+def _scene_name(text):
+    """A scene's name, or the path of an existing MuJoCo model file (.xml)."""
+    from .scenes import SCENES
+
+    if text in SCENES:
+        return text
+    if text.lower().endswith(".xml"):
+        if not os.path.isfile(text):
+            raise argparse.ArgumentTypeError(f"MuJoCo model file not found: {text}")
+        return text
+    raise argparse.ArgumentTypeError(f"invalid choice: {text!r} (choose from "
+                                     f"{', '.join(sorted(SCENES))}, or give a MuJoCo .xml file)")
+
+
 def _scene_options(parser):
     """Options that pick and size a scene (shared by ``run`` and ``render``)."""
     from .scenes import SCENES
 
-    parser.add_argument("scene", choices=sorted(SCENES), help="scene to simulate")
+    parser.add_argument("scene", type=_scene_name, metavar="SCENE",
+                        help=f"scene to simulate: one of {', '.join(sorted(SCENES))}, or a "
+                        f"MuJoCo model file (.xml; docs/mujoco.md)")
     scene = parser.add_argument_group("scene", "options a scene does not take are an error; "
                                       "the defaults are the scene's own")
     scene.add_argument("--bodies", type=_positive_int,
@@ -183,8 +201,8 @@ def build_parser():
         "(Kim, Redon and Kim 2008).")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="simulate a scene and report timing",
-                         description="Simulate one of the paper's scenes and write a JSON "
-                         "summary (timing, active joints, final state).")
+                         description="Simulate one of the paper's scenes (or a MuJoCo model "
+                         "file) and write a JSON summary (timing, active joints, final state).")
     _scene_options(run)
     run.add_argument("--steps", type=_positive_int, default=500,
                      help="number of time steps (default 500)")
@@ -194,9 +212,9 @@ def build_parser():
 
     render = sub.add_parser(
         "render", help="simulate a scene and write pictures or a video",
-        description="Simulate one of the paper's scenes and render it with pyrender over EGL "
-        "(Kim 2008 Figures 1, 2 and 7): PNG frames, a GIF, an MP4, or a motion strip; bodies "
-        "coloured by rigid group and active joints marked if asked.")
+        description="Simulate one of the paper's scenes (or a MuJoCo model file) and render "
+        "it with pyrender over EGL (Kim 2008 Figures 1, 2 and 7): PNG frames, a GIF, an MP4, "
+        "or a motion strip; bodies coloured by rigid group and active joints marked if asked.")
     _scene_options(render)
     render.add_argument("--out", required=True, metavar="FILE",
                         help=f"output file, by suffix ({', '.join(SUFFIXES)}); several PNG "
@@ -290,8 +308,9 @@ def make_scene(args, **override):
     import inspect
 
     from .scenes import SCENES
+    from .scenes.mjcf import mjcf_scene
 
-    build = SCENES[args.scene]
+    build = SCENES.get(args.scene) or functools.partial(mjcf_scene, args.scene)
     given = {"n_bodies": args.bodies, "n_dogs": args.dogs, "seed": args.seed, "dt": args.dt,
              "camera_distance": args.camera_distance, "resolution": args.resolution}
     given = {k: v for k, v in given.items() if v is not None}
