@@ -63,6 +63,13 @@ def default_tree(model) -> AssemblyTree:
     return AssemblyTree.balanced(model)
 
 
+@lru_cache(maxsize=64)
+def _work(tree) -> dca.DCAData:
+    """Work arrays of ``tree`` for calls that give none (cached: :func:`forward_dynamics`
+    returns a copy of its ``qdd``, so no caller holds them)."""
+    return dca.make_data(tree)
+
+
 def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     """Joint accelerations ``qdd`` (nv,) by the DCA (theory §4-5).
 
@@ -74,8 +81,8 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     """
     check_model(model)
     tree = default_tree(model) if tree is None else check_tree(model, tree)
-    data = dca.make_data(tree) if data is None else dca.check_data(tree, data)
-    if (not len(model.ball_q) and _as_given(q, (model.nq,)) and _as_given(qd, (model.nv,))
+    data = _work(tree) if data is None else dca.check_data(tree, data)
+    if (_as_given(q, (model.nq,)) and _as_given(qd, (model.nv,))
             and (tau is None or _as_given(tau, (model.nv,)))
             and (f_ext is None or _as_given(f_ext, (model.nb, 6)))
             and _evaluate(model, q, qd, tau, f_ext, tree, data)):
