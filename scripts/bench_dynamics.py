@@ -2,13 +2,17 @@
 
 Models: pendulum chains of 20, 300, 1000 and 10000 bodies, a forest of 100
 sixteen-body dog-shaped trees on free joints (1600 bodies) and the 29-body
-character with MuJoCo-style composite joints (three hinges for each ball). Beside
+character with MuJoCo-style composite joints (three hinges for each ball); and
+MuJoCo models as a user loads them (gymnasium's humanoid, ant, walker2d and
+pusher arm, ``vdad.load_mjcf``): ``forward_dynamics`` and a full simulator step
+against ``mj_forward`` and ``mj_step`` of the same file with contact off. Beside
 each figure: the previous numpy core's time on the same model, from
 ``docs/bench_dynamics_numpy.json`` (kept from the run before the compiled core),
 and numba's compile time in a fresh cache and load time from it (subprocesses).
 Writes ``docs/bench_dynamics.json`` and the tables between the markers of
 ``docs/benchmarks.md``. Usage: ``python scripts/bench_dynamics.py [--quick]
-[--no-compile]``.
+[--no-compile] [--imported]`` (``--imported``: the imported models only, into
+``docs/bench_imported.json``).
 """
 
 from __future__ import annotations
@@ -34,6 +38,9 @@ from vdad.scenes import pendulum
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 MARK = ("<!-- bench_dynamics:start -->", "<!-- bench_dynamics:end -->")
+IMPORTED_MARK = ("<!-- bench_imported:start -->", "<!-- bench_imported:end -->")
+#: gymnasium's MuJoCo models timed as imported (a humanoid, a quadruped, a walker, an arm)
+IMPORTED = ("humanoid", "ant", "walker2d", "pusher")
 
 
 def dog_forest(n_dogs=100):
@@ -200,6 +207,83 @@ def mujoco_call(model):
     return (lambda: mujoco.mj_forward(m, d)), ""
 
 
+#: steps per timed call of a step loop
+STEPS = 200
+
+
+def mujoco_forward_call(m, d):
+    import mujoco
+
+    return lambda: mujoco.mj_forward(m, d)
+
+
+def mujoco_steps_call(m, d):
+    import mujoco
+
+    def call():
+        for _ in range(STEPS):
+            mujoco.mj_step(m, d)
+    return call
+
+
+def imported_rows(budget):
+    """``forward_dynamics`` and a full step (the compiled step loop) of gymnasium's
+    :data:`IMPORTED` models loaded with ``vdad.load_mjcf``, against ``mj_forward``
+    and ``mj_step`` of the same files with contact off, in turns from ``qpos0``
+    and random velocities; [] without gymnasium."""
+    import warnings
+
+    import mujoco
+
+    try:
+        import gymnasium
+    except ImportError:
+        return []
+    base = Path(gymnasium.__file__).parent / "envs" / "mujoco" / "assets"
+    rows = []
+    for name in IMPORTED:
+        path = str(base / f"{name}.xml")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")                    # contacts left out
+            model, report = vdad.load_mjcf(path, report=True)
+        m = mujoco.MjModel.from_xml_path(path)
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        d = mujoco.MjData(m)
+        q, qd = np.array(report.q0), np.random.default_rng(0).normal(size=model.nv) * 0.1
+        d.qpos[:], d.qvel[:] = q, qd
+        sim = vdad.Simulator(model, q, qd, dt=report.dt)
+        sim.step(STEPS)
+        t = medians_us({"fd": vdad_call(model, q, qd), "mj_forward": mujoco_forward_call(m, d),
+                        "step": lambda sim=sim: sim.step(STEPS),
+                        "mj_step": mujoco_steps_call(m, d)}, budget)
+        row = dict(model=name, bodies=model.nb, dofs=model.nv, forward_us=t["fd"],
+                   mj_forward_us=t["mj_forward"], step_us=t["step"] / STEPS,
+                   mj_step_us=t["mj_step"] / STEPS,
+                   left_out=[f for f, *_ in report.left_out])
+        row["forward_over_mujoco"] = row["forward_us"] / row["mj_forward_us"]
+        row["step_over_mujoco"] = row["step_us"] / row["mj_step_us"]
+        rows.append(row)
+        print(json.dumps(row))
+    return rows
+
+
+def write_imported(rows, result):
+    lines = [f"Median µs (vdad and MuJoCo timed in turns); {result['machine']}"
+             f"{' (quick run)' if result['quick'] else ''}. `forward_dynamics` as a user "
+             f"calls it (float arrays, the model's cached work arrays); a step: the "
+             f"simulator's compiled semi-implicit step loop (200 steps a call) against "
+             f"`mj_step` (each file's own integrator, contact off) called 200 times from Python. "
+             f"Target (issue 17): within 8x of MuJoCo.", "",
+             "| model | bodies | dofs | forward_dynamics | mj_forward | ratio | step | mj_step "
+             "| ratio | left out |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['model']} | {r['bodies']} | {r['dofs']} | {fmt(r['forward_us'])} | "
+                     f"{fmt(r['mj_forward_us'])} | {fmt(r['forward_over_mujoco'], 2)}x | "
+                     f"{fmt(r['step_us'])} | {fmt(r['mj_step_us'])} | "
+                     f"{fmt(r['step_over_mujoco'], 2)}x | {', '.join(r['left_out'])} |")
+    write_section(IMPORTED_MARK, lines)
+
+
 def previous(label):
     """The numpy core's µs on ``label`` from the earlier JSON, or None."""
     path = DOCS / "bench_dynamics_numpy.json"
@@ -212,9 +296,18 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="short timing budget")
     parser.add_argument("--no-compile", action="store_true",
                         help="skip the compile and cache-load timing (about a minute)")
+    parser.add_argument("--imported", action="store_true",
+                        help="time the imported MuJoCo models only (their own table and "
+                        "bench_imported.json)")
     parser.add_argument("--out", default=str(DOCS / "bench_dynamics.json"))
     args = parser.parse_args(argv)
     budget = 0.5 if args.quick else 3.0
+    if args.imported:
+        result = dict(machine=f"{platform.processor() or platform.machine()}, "
+                      f"{os.cpu_count()} cores", quick=args.quick, imported=imported_rows(budget))
+        (DOCS / "bench_imported.json").write_text(json.dumps(result, indent=1))
+        write_imported(result["imported"], result)
+        return
     # (label, model, one tree of a forest, a model timed in turns with this one)
     cases = [("chain 20", pendulum(20).model, None, None),
              ("chain 300", pendulum(300).model, None, None),
@@ -256,14 +349,17 @@ def main(argv=None):
                    notes="; ".join(x for x in (pin_note, mj_note) if x))
         rows.append(row)
         print(json.dumps(row))
+    imported = imported_rows(budget)
     result = dict(machine=f"{platform.processor() or platform.machine()}, "
                   f"{os.cpu_count()} cores", python=platform.python_version(),
                   numpy=np.__version__, numba=__import__("numba").__version__,
-                  quick=args.quick, rows=rows,
+                  quick=args.quick, rows=rows, imported=imported,
                   compile=None if args.no_compile else time_compile())
     print(json.dumps(result["compile"]))
     Path(args.out).write_text(json.dumps(result, indent=1))
     write_table(rows, result)
+    if imported:
+        write_imported(imported, result)
 
 
 def fmt(x, digits=1):
