@@ -97,7 +97,7 @@ def test_the_summary_line_shows_the_options_used(capsys):
 # --- the command lines of the documentation ------------------------------------------
 
 PLACEHOLDERS = {"SCENE": "pendulum", "METHOD": "adaptive", "FILE": "out.png", "DIR": "results",
-                "PATH": "out.json",
+                "PATH": "out.json", "MODEL.xml": str(ROOT / "tests" / "data" / "arm.xml"),
                 "D": "3", "N": "3"}
 SMALL_STEPS = "5"
 
@@ -150,7 +150,8 @@ def instantiate(command):
     unknown = [w for w in argv if re.fullmatch(r"[A-Z][A-Z_]*", w)]
     assert not unknown, f"add {unknown} to PLACEHOLDERS"
     if argv[0] in ("run", "render") and "--help" not in argv:
-        if len(argv) < 2 or argv[1] not in SCENES:             # `vdad render`: a name
+        if len(argv) < 2 or (argv[1] not in SCENES             # `vdad render`: a name
+                             and not argv[1].endswith(".xml")):
             argv.insert(1, PLACEHOLDERS["SCENE"])
         if argv[0] == "render" and "--out" not in argv:
             argv += ["--out", PLACEHOLDERS["FILE"]]
