@@ -62,11 +62,10 @@ class Actuation:
         are kept."""
         import mujoco
 
-        obj, nq, nv = mujoco.mjtObj, m.nq, m.nv
-        flags = int(m.opt.disableflags)
-        clamp = not flags & int(mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL)
-        def name(kind, i):
-            return mujoco.mj_id2name(m, kind, i) or f"{kind.name[6:].lower()}{i}"
+        from .mujoco import _name
+
+        nq, nv = m.nq, m.nv
+        clamp = not int(m.opt.disableflags) & int(mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL)
         fixed = np.array([m.tendon_num[t] > 0 and all(
             int(m.wrap_type[w]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
             and int(m.jnt_type[m.wrap_objid[w]]) in HINGE_SLIDE
@@ -93,7 +92,8 @@ class Actuation:
                       and int(m.actuator_gaintype[a]) in gains
                       and int(m.actuator_biastype[a]) in biases)
             (keep if simple and (on_joint or on_tendon) else left).append(a)
-        left_names = tuple(name(obj.mjOBJ_ACTUATOR, a) for a in left)
+        names = [_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a, "actuator") for a in range(m.nu)]
+        left_names = tuple(names[a] for a in left)
         if not keep and not len(sprung):
             return None, left_names, sprung
         nu = len(keep)
@@ -120,7 +120,7 @@ class Actuation:
         for j in np.flatnonzero(m.jnt_actfrclimited):
             if int(m.jnt_type[j]) in HINGE_SLIDE:
                 joint_range[m.jnt_dofadr[j]] = m.jnt_actfrcrange[j]
-        element = cls(model, [name(obj.mjOBJ_ACTUATOR, a) for a in keep], keep, length_q, moment,
+        element = cls(model, [names[a] for a in keep], keep, length_q, moment,
                       gain, bias, ctrl_range, force_range, joint_range, tendon_q[sprung],
                       tendon_v[sprung], k[sprung], d[sprung], m.tendon_lengthspring[sprung])
         return element, left_names, sprung
