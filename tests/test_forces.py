@@ -556,6 +556,22 @@ def test_hinge_limits():
     assert limits.energy(q) == pytest.approx(k * 0.2**2 / 2 + 0.3 * 900 * 0.1**2 / 2, rel=1e-12)
 
 
+def test_composite_joint_limits_act_per_stage():
+    """A composite joint's stages (MuJoCo's multi-joint bodies) are limited one by
+    one, each at its own q and dof, as a one-dof joint would be; None: no limit."""
+    model = limited_model()
+    limits = JointLimits(model, {"composite": ((-0.2, 0.2), None)}, frequency=30.0)
+    k = joint_inertia(model, 3) * 30.0**2
+    j = 3
+    iq, iv = model.q_start[j], model.v_start[j]
+    q, qd = np.array(model.q_neutral), np.zeros(model.nv)
+    q[iq], q[iq + 1] = 0.5, 7.0                          # stage 0 past 0.2; stage 1 free
+    out = np.zeros(model.nv)
+    limits.tau(0.0, q, qd, out)
+    assert out[iv] == pytest.approx(-k * 0.3, rel=1e-12) and np.count_nonzero(out) == 1
+    assert limits.energy(q) == pytest.approx(k * 0.3**2 / 2, rel=1e-12)
+
+
 def test_ball_joint_cone():
     """Beyond the cone the torque is -(k e + c outward rate) along the rotation
     axis, and -grad of the energy k e^2 / 2 (body-frame finite differences)."""
@@ -600,9 +616,12 @@ def test_joint_limit_errors():
         JointLimits(model, {"elbow": (0.0, 1.0)})
     with pytest.raises(InputError, match="joint 'hinge': limit low 1.0 > high -1.0"):
         JointLimits(model, {"hinge": (1.0, -1.0)})
-    for name in ("free", "composite"):
-        with pytest.raises(ModelError, match=f"joint '{name}': limits need a one-dof or ball"):
-            JointLimits(model, {name: 0.5})
+    with pytest.raises(ModelError, match="joint 'free': limits need a one-dof, ball or "
+                                         "composite hinge and slide joint"):
+        JointLimits(model, {"free": 0.5})
+    with pytest.raises(InputError, match="limits\\['composite'\\]: a composite joint of 2 "
+                                         "stages takes one \\(low, high\\) or None per stage"):
+        JointLimits(model, {"composite": 0.5})
     with pytest.raises(InputError, match="limits\\['ball'\\]: a ball joint takes one cone"):
         JointLimits(model, {"ball": (0.1, 0.5)})
     with pytest.raises(InputError, match="limits\\['hinge'\\]: a one-dof joint takes \\(low"):

@@ -441,3 +441,28 @@ def test_a_mujoco_model_file_is_a_scene_with_its_forces_limits_and_a_framing_cam
         sim = scene.simulator(method=method)
         sim.step(25)
         assert np.all(np.isfinite(sim.q)) and sim.q[4] != scene.q0[4]     # the elbow moves
+
+
+def test_a_mujoco_scene_limits_every_limited_hinge_and_slide():
+    """gymnasium's humanoid: every limited hinge of MuJoCo, in one-dof and in
+    multi-hinge (composite) joints, has its range in the scene's JointLimits."""
+    import gymnasium
+
+    path = Path(gymnasium.__file__).parent / "envs" / "mujoco" / "assets" / "humanoid.xml"
+    with pytest.warns(UserWarning, match="left out contacts"):
+        scene = mjcf_scene(path)
+    m = mujoco.MjModel.from_xml_path(str(path))
+    limited = [j for j in range(m.njnt) if m.jnt_limited[j] and m.jnt_type[j] in (2, 3)]
+    limits = scene.forces.elements[-1]
+    order = np.argsort(limits.h_dof)
+    np.testing.assert_array_equal(limits.h_dof[order], np.sort(m.jnt_dofadr[limited]))
+    by_dof = dict(zip(m.jnt_dofadr[limited], m.jnt_range[limited], strict=True))
+    for dof, low, high in zip(limits.h_dof, limits.low, limits.high, strict=True):
+        assert (low, high) == tuple(by_dof[dof])
+    assert any(len(j.build_stages()) > 1 and j.name in limits_names(scene)
+               for j in scene.model.joints)
+
+
+def limits_names(scene):
+    limits = scene.forces.elements[-1]
+    return {scene.model.joint_names[scene.model.dof_joint[d]] for d in limits.h_dof}

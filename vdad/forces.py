@@ -525,7 +525,9 @@ class JointLimits:
     on the rotation vector).
 
     limits: ``{joint name: (low, high)}`` for one-dof joints, ``{joint name:
-    angle}`` for ball joints. Beyond a limit by ``e``, the joint feels
+    angle}`` for ball joints, ``{joint name: ((low, high) or None, ...)}`` (one
+    entry per stage) for composite joints of hinges and slides (the ranges of
+    MuJoCo's multi-joint bodies). Beyond a limit by ``e``, the joint feels
     ``-k e - c max(rate outwards, 0)`` with ``k = I w^2`` and ``c = 2 zeta I w``,
     ``I`` = :func:`joint_inertia` (for slides the lighter mass): each limit is a
     spring of natural ``frequency`` w on the lighter side of the joint alone,
@@ -547,29 +549,42 @@ class JointLimits:
             stages = model.joints[j].build_stages()
             kinds = [s.kind for s in stages]
             I_joint = joint_inertia(model, j)
-            if kinds in (["hinge"], ["slide"]):
+            if len(kinds) > 1 and set(kinds) <= {"hinge", "slide"}:
+                if not isinstance(limit, (tuple, list)) or len(limit) != len(kinds):
+                    raise InputError(f"limits[{name!r}]: a composite joint of {len(kinds)} "
+                                     f"stages takes one (low, high) or None per stage, got "
+                                     f"{show(limit)}")
+                ranges = list(limit)
+            elif kinds in (["hinge"], ["slide"]):
                 if real_array(f"limits[{name!r}]", limit).shape != (2,):
                     raise InputError(f"limits[{name!r}]: a one-dof joint takes (low, high), "
                                      f"got {show(limit)}")
-                low, high = check_real(f"limits[{name!r}]", limit, (2,))
-                if low > high:
-                    raise InputError(f"joint {name!r}: limit low {low} > high {high}")
-                inertia = joint_inertia(model, j, "mass") if kinds == ["slide"] else I_joint
-                hinge.append((model.v_start[j], low, high, inertia))
+                ranges = [limit]
             elif kinds == ["ball"]:
                 if real_array(f"limits[{name!r}]", limit).ndim != 0:
                     raise InputError(f"limits[{name!r}]: a ball joint takes one cone angle, "
                                      f"got {show(limit)}")
                 angle = float(check_real(f"limits[{name!r}]", limit, positive=True))
                 ball.append((model.q_start[j], model.v_start[j], angle, I_joint))
+                continue
             else:
-                raise ModelError(f"joint {name!r}: limits need a one-dof or ball joint, not "
-                                 f"stages {kinds}")
-        h = np.array(hinge, float).reshape(-1, 4)
+                raise ModelError(f"joint {name!r}: limits need a one-dof, ball or composite "
+                                 f"hinge and slide joint, not stages {kinds}")
+            first = int(np.flatnonzero(model.stage_joint == j)[0])
+            for k, (kind, pair) in enumerate(zip(kinds, ranges, strict=True)):
+                if pair is None:
+                    continue
+                low, high = check_real(f"limits[{name!r}]", pair, (2,))
+                if low > high:
+                    raise InputError(f"joint {name!r}: limit low {low} > high {high}")
+                inertia = joint_inertia(model, j, "mass") if kind == "slide" else I_joint
+                hinge.append((model.stage_v[first + k], model.stage_q[first + k], low, high,
+                              inertia))
+        h = np.array(hinge, float).reshape(-1, 5)
         h = np.ascontiguousarray(h.T)
-        self.h_dof, self.low, self.high = h[0].astype(np.int64), h[1], h[2]
-        self.h_q = model.q_start[model.dof_joint[self.h_dof]].astype(np.int64)
-        self.h_k, self.h_c = h[3] * frequency**2, 2 * zeta * h[3] * frequency
+        self.h_dof, self.h_q = h[0].astype(np.int64), h[1].astype(np.int64)
+        self.low, self.high = h[2], h[3]
+        self.h_k, self.h_c = h[4] * frequency**2, 2 * zeta * h[4] * frequency
         b = np.array(ball, float).reshape(-1, 4)
         b = np.ascontiguousarray(b.T)
         self.b_q, self.b_v, self.angle = b[0].astype(np.int64), b[1].astype(np.int64), b[2]

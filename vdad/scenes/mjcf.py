@@ -16,14 +16,18 @@ VIEW_DIRECTION = np.array([1.0, -1.6, 0.7])
 
 
 def _limits(model):
-    """``{joint name: (low, high) or cone angle}`` of the joints whose MuJoCo range
-    :class:`~vdad.forces.JointLimits` can hold: one-dof and ball joints."""
+    """``{joint name: (low, high), cone angle or a pair or None per stage}`` of the
+    joints whose MuJoCo range :class:`~vdad.forces.JointLimits` can hold: one-dof
+    and ball joints, and composite joints of hinges and slides."""
     out = {}
     for joint, stages in ((j, j.build_stages()) for j in model.joints):
-        if joint.limits is None or len(stages) != 1:
+        kinds = {s.kind for s in stages}
+        if joint.limits is None or (len(stages) > 1 and not kinds <= {"hinge", "slide"}):
             continue
-        low, high = joint.limits
-        out[joint.name] = float(high) if stages[0].kind == "ball" else (low, high)
+        if len(stages) == 1 and stages[0].kind == "ball":
+            out[joint.name] = float(joint.limits[1])
+        else:
+            out[joint.name] = joint.limits
     return out
 
 
