@@ -214,13 +214,19 @@ def _kept(m):
     return keep
 
 
+def _frame(offset, p, quat):
+    """``(R, p)`` of the frame ``offset`` (R, p) or None (identity) composed with
+    ``(p, quat)``."""
+    R0, p0 = (np.eye(3), np.zeros(3)) if offset is None else offset
+    return R0 @ quat_to_rot(np.asarray(quat, float)), p0 + R0 @ np.asarray(p, float)
+
+
 def _pose(offset, p, quat):
     """The Pose ``offset`` (R, p) or None (identity) composed with ``(p, quat)``."""
     if offset is None:
         return Pose(tuple(float(x) for x in p), tuple(float(x) for x in quat))
-    R0, p0 = offset
-    R = quat_to_rot(np.asarray(quat, float))
-    return Pose(tuple((p0 + R0 @ np.asarray(p, float)).tolist()), R0 @ R)
+    R, p = _frame(offset, p, quat)
+    return Pose(tuple(p.tolist()), R)
 
 
 def _geoms(m, b, offset, skipped):
@@ -404,9 +410,7 @@ def _import(m, strict, report, stacklevel):
         p = int(m.body_parentid[b])
         if not keep[b]:                            # welded: to its parent's host
             host[b] = host[p]
-            base = offset[p] if offset[p] is not None else (np.eye(3), np.zeros(3))
-            R = quat_to_rot(np.asarray(m.body_quat[b], float))
-            offset[b] = (base[0] @ R, base[1] + base[0] @ np.asarray(m.body_pos[b], float))
+            offset[b] = _frame(offset[p], m.body_pos[b], m.body_quat[b])
             if m.body_mocapid[b] < 0:
                 welded.append(name)
             geoms = _geoms(m, b, offset[b], skipped)
