@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from hypothesis import strategies as st
 
 import vdad
 from vdad.spatial import quat_normalize
@@ -114,22 +115,25 @@ def random_chain(seed, n=8, kinds=("revolute", "spherical", "prismatic", "revolu
     return vdad.Model(bodies, joints, gravity=gravity, name=f"chain{seed}")
 
 
-def coil_chain(n, skew=1.5, taper=0.95):
+def coil_chain(n, skew=1.5, taper=0.95, branching=1):
     """Featherstone's ill-conditioned "coil" (spatial_v2 ``autoTree(n, 1, skew, taper)``):
     revolute joints about z, each frame turned by ``skew`` about x and moved one
-    (tapering) link length along x; thin rods whose mass tapers as taper^3."""
+    (tapering) link length along x; thin rods whose mass tapers as taper^3. With
+    ``branching`` 2, ``autoTree(n, 2, skew, taper)``: the same links on a binary
+    tree (body ``i``'s parent ``(i - 1) // 2``)."""
     bodies, joints = [], []
-    prev_len = 0.0
     for i in range(n):
         length, mass = taper**i, taper ** (3 * i)
         inertia = mass * length**2 * np.array([0.0025, 1.015 / 12, 1.015 / 12])
         bodies.append(vdad.Body(f"b{i}", mass, (length / 2, 0.0, 0.0), inertia))
         c, s = np.cos(skew), np.sin(skew)
         rot = np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) if i else np.eye(3)
-        joints.append(vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}", "revolute",
-                                 axis=(0, 0, 1), placement=vdad.Pose((prev_len, 0, 0), rot)))
-        prev_len = length
-    return vdad.Model(bodies, joints, gravity=(0.0, 0.0, -9.81), name=f"coil{n}")
+        parent = (i - 1) // branching if i else None
+        joints.append(vdad.Joint(f"j{i}", None if i == 0 else f"b{parent}", f"b{i}", "revolute",
+                                 axis=(0, 0, 1),
+                                 placement=vdad.Pose((taper**parent if i else 0.0, 0, 0), rot)))
+    return vdad.Model(bodies, joints, gravity=(0.0, 0.0, -9.81),
+                      name=f"coil{n}" if branching == 1 else f"autotree{n}-{branching}")
 
 
 def relative_error(a, b):
@@ -217,3 +221,61 @@ def moved_pixels(tree, per_body, floating=True):
     for m in range(len(tree.joint)):
         N[nb + m] = max(moved(j) for j in joints(nb + m))
     return N
+
+
+def thin_rod(r, kind="revolute", seed=1, com=(0.0, 0.0, 0.0), axis=(0.3, 0.5, 0.8)):
+    """One rod of unit mass on one joint to the world, no gravity: principal
+    moments 0.1, 0.1 and ``0.1 r`` about seeded axes (issue: thin bodies)."""
+    rng = np.random.default_rng(seed)
+    R = random_rotation(rng)
+    inertia = R @ np.diag([0.1, 0.1, 0.1 * r]) @ R.T
+    body = vdad.Body("rod", 1.0, com, 0.5 * (inertia + inertia.T))
+    if kind == "composite":
+        stages = (vdad.joints.Stage("hinge", axis), vdad.joints.Stage("hinge", (1, -1, 0.2)))
+        joint = vdad.Joint("j", None, "rod", kind, stages=stages)
+    else:
+        joint = vdad.Joint("j", None, "rod", kind, axis=axis)
+    return vdad.Model([body], [joint], gravity=(0.0, 0.0, 0.0), name=f"rod{r:g}")
+
+
+def thin_chain(n, moments, seed=2, com=(0.0, 0.0, -0.5), kinds=("revolute",)):
+    """A chain of ``n`` unit-mass bodies with principal ``moments`` about seeded axes,
+    one link length apart, joints of ``kinds`` in turn about seeded axes."""
+    rng = np.random.default_rng(seed)
+    bodies, joints = [], []
+    for i in range(n):
+        R = random_rotation(rng)
+        inertia = R @ np.diag(moments) @ R.T
+        bodies.append(vdad.Body(f"b{i}", 1.0, com, 0.5 * (inertia + inertia.T)))
+        joints.append(vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}",
+                                 kinds[i % len(kinds)], axis=tuple(rng.normal(size=3)),
+                                 placement=vdad.Pose((0.0, 0.0, -1.0 if i else 0.0))))
+    return vdad.Model(bodies, joints, name=f"thin{n}")
+
+
+def thin_tree(seed, n, log_ratios):
+    """:func:`random_tree` (every joint kind, composite joints, springs) whose
+    bodies are made thin rods (principal moments ``a, a, a 10^x``) or point masses
+    (every moment times ``10^x``) in turn, ``x`` from ``log_ratios``."""
+    base = random_tree(seed, n=n, composite=True)
+    rng = np.random.default_rng(seed)
+    bodies = []
+    for i, body in enumerate(base.bodies):
+        ratio = 10.0 ** log_ratios[i % len(log_ratios)]
+        if i % 2 == 0:
+            R = random_rotation(rng)
+            a = rng.uniform(0.05, 0.2)
+            inertia = R @ np.diag([a, a, a * ratio]) @ R.T
+        else:
+            inertia = np.asarray(body.inertia) * ratio
+        bodies.append(replace(body, inertia=0.5 * (inertia + inertia.T)))
+    return vdad.Model(bodies, base.joints, gravity=base.gravity, q_spring=base.q_spring,
+                      name=f"thin{seed}")
+
+
+#: hypothesis: random trees of thin rods and point masses, principal-moment
+#: ratios down to 1e-10 (:func:`thin_tree`), with a state seed
+thin_trees = st.builds(
+    lambda seed, n, x: (thin_tree(seed, n, x), seed),
+    st.integers(0, 2 ** 16), st.integers(2, 9),
+    st.lists(st.floats(-10.0, 0.0), min_size=1, max_size=9))

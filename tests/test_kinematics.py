@@ -1,6 +1,7 @@
 """Joint sets and their subspace tables (vdad.kinematics, theory §3)."""
 
 import numpy as np
+import pytest
 from strategies import random_state, random_tree, relative_error, tolerance
 
 import vdad
@@ -60,3 +61,45 @@ def test_forward_dynamics_reads_the_shared_rows():
     q, qd, tau, f_ext = random_state(model, 1)
     qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
     assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
+
+
+def gimbal(seed=5):
+    """One body on z-y-x hinges (a composite joint, as MJCF bodies with three
+    joints), with gravity."""
+    rng = np.random.default_rng(seed)
+    body = vdad.Body("b", 1.0, tuple(rng.normal(size=3) * 0.2), (0.3, 0.4, 0.5))
+    stages = tuple(J.Stage("hinge", axis) for axis in [(0, 0, 1), (0, 1, 0), (1, 0, 0)])
+    return vdad.Model([body], [vdad.Joint("gimbal", None, "b", "composite", stages=stages)])
+
+
+@pytest.mark.parametrize("gap", [1e-4, 1e-8])
+def test_composite_joints_near_gimbal_lock_are_computed(gap):
+    """z-y-x hinges at pitch pi/2 - gap: cond(M) = 3e8 and 1e18. The DCA computes
+    both (it raised numpy's LinAlgError at 1e-8 before W came from a QR factor),
+    within c cond(M) eps of the reference ABA and of MuJoCo (the CRBA's Cholesky
+    fails at 1e-8)."""
+    model = gimbal()
+    q, qd = np.array([0.3, np.pi / 2 - gap, -0.2]), np.array([0.1, 0.2, 0.3])
+    qdd = vdad.forward_dynamics(model, q, qd)
+    assert np.all(np.isfinite(qdd))
+    tol = tolerance(model, q, c=10.0)
+    assert relative_error(qdd, reference.aba(model, q, qd)) < tol
+    from vdad.interop.mujoco import mujoco_forward, to_mujoco
+
+    assert relative_error(qdd, mujoco_forward(*to_mujoco(model), q, qd)) < tol
+
+
+def test_a_composite_joint_in_gimbal_lock_is_a_simulation_error():
+    """At pitch pi/2 the three axes span two directions: no accelerations exist.
+    forward_dynamics and a simulation stop with a SimulationError naming the joint
+    and its coordinates (not numpy's LinAlgError, not a NaN)."""
+    model = gimbal()
+    q, qd = np.array([0.3, np.pi / 2, -0.2]), np.array([0.1, 0.2, 0.3])
+    with pytest.raises(vdad.SimulationError, match=r"joint 'gimbal' is in gimbal lock at q = "
+                                                   r"\[ 0\.3 +1\.570796 -0\.2 *\]: its 3 axes "
+                                                   r"span only 2 directions"):
+        vdad.forward_dynamics(model, q, qd)
+    sim = vdad.Simulator(model, q, qd, dt=1e-3)
+    with pytest.raises(vdad.SimulationError, match=r"step 1 \(t = 0 s\): joint 'gimbal' is in "
+                                                   r"gimbal lock"):
+        sim.step()

@@ -82,8 +82,29 @@ def test_complement_spans_the_null_space_of_S_transposed(d):
     cond = np.linalg.cond(S[:, :d]) if d else 1.0
     np.testing.assert_allclose(Tn.T @ Tn, np.eye(6 - d), rtol=0, atol=50 * EPS)
     np.testing.assert_allclose(S[:, :d].T @ Tn, 0, rtol=0, atol=50 * cond * EPS)
-    np.testing.assert_allclose(S[:, :d].T @ Wn, np.eye(d), rtol=0, atol=50 * cond**2 * EPS)
+    np.testing.assert_allclose(S[:, :d].T @ Wn, np.eye(d), rtol=0, atol=50 * cond * EPS)
     assert not T[:, 6 - d:].any() and not W[:, d:].any()
+
+
+@pytest.mark.parametrize("gap", [1e-4, 1e-8, 0.0])
+def test_complement_near_and_at_a_loss_of_rank(gap):
+    """W = Q_1 R^-T keeps the accuracy of S (its error follows cond(S), where the
+    normal equations' followed cond(S)^2) as two of three columns align; where
+    they do (a gimbal lock), W is NaN and T still an orthonormal set."""
+    rng = np.random.default_rng(1)
+    S = np.zeros((6, 6))
+    S[:, :2] = rng.normal(size=(6, 2))
+    S[:, 2] = S[:, 0] + gap * rng.normal(size=6)
+    T, W = np.empty((6, 6)), np.empty((6, 6))
+    L.complement(S, 3, T, W, np.empty((3, 6, 6)))
+    np.testing.assert_allclose(T[:, :3].T @ T[:, :3], np.eye(3), rtol=0, atol=50 * EPS)
+    if gap == 0.0:
+        assert np.isnan(W[:, :3]).all()
+        return
+    cond = np.linalg.cond(S[:, :3])
+    np.testing.assert_allclose(S[:, :3].T @ W[:, :3], np.eye(3), rtol=0, atol=50 * cond * EPS)
+    expected = np.linalg.pinv(S[:, :3]).T
+    assert np.abs(W[:, :3] - expected).max() < 50 * cond * EPS * np.abs(expected).max()
 
 
 def test_solve_general_and_cholesky():

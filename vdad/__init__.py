@@ -5,7 +5,7 @@ when a function needs them.
 """
 
 from .assembly import AssemblyTree
-from .dynamics import forward_dynamics, passive_forces
+from .dynamics import forward_dynamics, inverse_dynamics, passive_forces
 from .errors import (
     InputError,
     ModelError,
@@ -23,5 +23,5 @@ __version__ = "0.1.0"
 __all__ = [
     "AssemblyTree", "Body", "Geom", "InputError", "Joint", "Model", "ModelError", "Pose",
     "RenderError", "SimulationError", "Simulator", "UnsupportedFeatureError", "VdadError",
-    "forward_dynamics", "from_mujoco", "load_mjcf", "passive_forces",
+    "forward_dynamics", "from_mujoco", "inverse_dynamics", "load_mjcf", "passive_forces",
 ]

@@ -511,25 +511,31 @@ def solve_general(K, x, n):
 
 @inlined
 def complement(S, d, T, W, work):
-    """``T`` and ``W`` of theory (T5) for the first ``d`` columns of ``S`` (6, 6):
-    ``T``'s first ``6 - d`` columns an orthonormal basis of ``null(S^T)`` (from a
-    Householder QR of ``S``), ``W = S (S^T S)^-1`` in ``W``'s first ``d`` columns;
-    the other columns zero. ``work`` (3, 6, 6) is scratch. Any basis of
-    ``null(S^T)`` gives the same (T7)."""
-    Q, G, Z = work[0], work[1], work[2]
+    """``T`` and ``W`` of theory (T5) for the first ``d`` columns of ``S`` (6, 6),
+    from a Householder QR ``S = Q R``: ``T``'s first ``6 - d`` columns the last
+    columns of ``Q``, an orthonormal basis of ``null(S^T)``, and ``W = S (S^T
+    S)^-1 = Q_1 R^-T`` in ``W``'s first ``d`` columns (``Q_1`` the first ``d``
+    columns of ``Q``: no normal equations, so ``W`` keeps the accuracy of ``S``
+    near a singular configuration, ``docs/joints.md``); the other columns zero.
+    Where ``S`` loses rank (a diagonal entry of ``R`` below ``64 eps`` of the
+    largest: a composite joint in gimbal lock) ``W`` is NaN, which the callers
+    report. ``work`` (3, 6, 6) is scratch. Any basis of ``null(S^T)`` gives the
+    same (T7)."""
+    Q, Rf, Z = work[0], work[1], work[2]
     h = Z[0]                                  # Z is needed only after the reflections
     for i in range(6):
         for j in range(6):
             Q[i, j] = S[i, j] if j < d else 0.0
             T[i, j] = 0.0
             W[i, j] = 0.0
-    # Householder reflectors H_k = 1 - 2 h h^T; h_k kept in column k of Q
+    # Householder reflectors H_k = 1 - 2 h h^T; h_k kept in column k of Q, R in Rf
     for k in range(d):
         norm = 0.0
         for i in range(k, 6):
             norm += Q[i, k] * Q[i, k]
         norm = np.sqrt(norm)
         alpha = -norm if Q[k, k] >= 0 else norm
+        Rf[k, k] = alpha
         for i in range(6):
             h[i] = Q[i, k] if i >= k else 0.0
         h[k] -= alpha
@@ -545,31 +551,33 @@ def complement(S, d, T, W, work):
                 s += h[i] * Q[i, j]
             for i in range(k, 6):
                 Q[i, j] -= 2.0 * s * h[i]
+            Rf[k, j] = Q[k, j]
         for i in range(6):
             Q[i, k] = h[i]
-    # T's columns: H_0 ... H_{d-1} e_{d+c}
-    for c in range(6 - d):
+    # columns of Q = H_0 ... H_{d-1} e_c: Q_1 into W (c < d), T (c >= d)
+    for c in range(6):
+        col = W[:, c] if c < d else T[:, c - d]
         for i in range(6):
-            T[i, c] = 1.0 if i == d + c else 0.0
+            col[i] = 1.0 if i == c else 0.0
         for k in range(d - 1, -1, -1):
             s = 0.0
             for i in range(6):
-                s += Q[i, k] * T[i, c]
+                s += Q[i, k] * col[i]
             for i in range(6):
-                T[i, c] -= 2.0 * s * Q[i, k]
-    # W = S (S^T S)^-1: solve (S^T S) Z = S^T, W = Z^T
-    for i in range(d):
-        for j in range(d):
-            s = 0.0
-            for k in range(6):
-                s += S[k, i] * S[k, j]
-            G[i, j] = s
-        for j in range(6):
-            Z[i, j] = S[j, i]
-    solve_general(G, Z, d)
+                col[i] -= 2.0 * s * Q[i, k]
+    # W = Q_1 R^-T: each row w of W solves R w^T = (row of Q_1)^T
+    big = 0.0
+    for k in range(d):
+        big = max(big, abs(Rf[k, k]))
+    singular = False
+    for k in range(d):
+        singular = singular or not abs(Rf[k, k]) > 64.0 * 2.220446049250313e-16 * big
     for i in range(6):
-        for j in range(d):
-            W[i, j] = Z[j, i]
+        for c in range(d - 1, -1, -1):
+            acc = W[i, c]
+            for k in range(c + 1, d):
+                acc -= Rf[c, k] * W[i, k]
+            W[i, c] = np.nan if singular else acc / Rf[c, c]
 
 
 clear_stale_caches()

@@ -36,6 +36,7 @@ from functools import lru_cache
 import numpy as np
 from numba import prange
 
+from . import joints as J
 from ._linalg import (
     cholesky,
     finite,
@@ -61,7 +62,8 @@ from ._linalg import (
 )
 from .checks import check_count
 from .errors import InputError
-from .kinematics import Kinematics, kinematics_pass, plan
+from .kinematics import Kinematics, joint_kinematics, kinematics_pass, plan, world_poses
+from .newton_euler import FULL, MASS, body_wrench, inverse_dynamics_pass
 
 
 @dataclass
@@ -73,10 +75,11 @@ class DCAData:
     Phi [n_pairs, 6, 6], b [n_slots, 6]: block stores of the tree (blocks ``a <= c``).
     Y [nb, 6, 6], beta, gamma [nb, 6]: per internal node, the intermediates kept
     for the top-down pass, with WtWm [nv, 6]: ``W^T W_m`` of each joint, a row per
-    dof (what (T13) needs of ``W_m``). f_J [nb, 6]: joint wrenches; qdd [nv]:
-    joint accelerations; tau [nv]: the joint forces of the last evaluation
-    (springs, dampers and actuation). X, GY [max ports, 6, 6], tmp [8, 6, 6]:
-    scratch.
+    dof (what (T13) needs of ``W_m``), and PF [nv, 6]: ``(P F)^T`` of (A2) for the
+    joints with armature. f_J [nb, 6]: joint wrenches; qdd [nv]: joint
+    accelerations; tau [nv]: the joint forces of the last evaluation (springs,
+    dampers and actuation). X, GY [max ports, 6, 6], tmp [8, 6, 6]: scratch;
+    a, f [nb, 6], cg [5, nv]: scratch of :func:`refine_pass`.
     """
 
     kin: Kinematics
@@ -92,21 +95,26 @@ class DCAData:
     X: np.ndarray
     GY: np.ndarray
     tmp: np.ndarray
+    PF: np.ndarray
+    a: np.ndarray
+    f: np.ndarray
+    cg: np.ndarray
 
     @property
     def arrays(self) -> tuple:
         return (self.Phi, self.b, self.Y, self.WtWm, self.beta, self.gamma, self.f_J, self.qdd,
-                self.tau, self.X, self.GY, self.tmp)
+                self.tau, self.X, self.GY, self.tmp, self.PF, self.a, self.f, self.cg)
 
 
 def make_data(tree) -> DCAData:
     """Allocate the work arrays for ``tree``."""
     model = tree.model
-    nb, P = model.nb, tree.max_ports
+    nb, nv, P = model.nb, model.nv, tree.max_ports
     z = np.zeros
     return DCAData(Kinematics.empty(plan(model)), z((tree.n_pairs, 6, 6)), z((tree.n_slots, 6)),
-                   z((nb, 6, 6)), z((model.nv, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(model.nv),
-                   z(model.nv), z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)))
+                   z((nb, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(nv), z(nv),
+                   z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)),
+                   z((5, nv)))
 
 
 def check_data(tree, data):
@@ -151,16 +159,102 @@ def node_blocks(tree, data, node):
     return out
 
 
+#: a leaf whose smallest principal moment is below ``LEAF_FLOOR`` of its body's
+#: scale has its moments raised to ``LEAF_RAISE`` of it, and the DCA's
+#: accelerations are refined ((R2) of ``docs/accuracy.md``)
+LEAF_FLOOR, LEAF_RAISE = 1e-2, 1e-1
+
+
+@lru_cache(maxsize=64)
+def leaf_inertias(model) -> tuple:
+    """(R2) of ``docs/accuracy.md``: the inverse rotational inertias (nb, 3, 3) that
+    the DCA's leaves use, and the mask (nb,) of the bodies where they differ from
+    the model's. Where a body's smallest principal moment is below
+    :data:`LEAF_FLOOR` times its scale ``max(I_max, m l^2)`` (``l`` the distance
+    from its centre of mass to its farthest joint: its own joint's frame, its
+    children's placements), its moments are raised to :data:`LEAF_RAISE` times the
+    scale: a thin rod or a point mass would put ``1 / I_min`` beside ``1 / (m l^2)``
+    in the leaf's blocks (T2), and the assembly (T11) would cancel them."""
+    lever = np.linalg.norm(model.com, axis=1)
+    for j in np.flatnonzero(model.parent >= 0):
+        b = model.parent[j]
+        lever[b] = max(lever[b], np.linalg.norm(model.com[b] - model.placement_p[j]))
+    moments, axes = np.linalg.eigh(model.inertia)
+    scale = np.maximum(moments[:, -1], model.mass * lever ** 2)
+    raised = moments[:, 0] < LEAF_FLOOR * scale
+    leaf = np.maximum(moments, LEAF_RAISE * scale[:, None])
+    Iinv = np.einsum("bij,bj,bkj->bik", axes, 1.0 / leaf, axes)
+    Iinv[~raised] = np.linalg.inv(model.inertia[~raised])
+    return Iinv, raised
+
+
+def spin_axes(model):
+    """The axis about which every body of ``model`` turns, in each body's frame
+    (nb, 3), where all do about one direction: every rotational stage a hinge, all
+    hinge axes parallel (then at every configuration, since turning about a
+    direction keeps it); zero vectors where nothing turns (slides only); None
+    otherwise. On such (planar) models a leaf raised square to that axis changes
+    no entry of ``M``, and needs no refinement (``docs/accuracy.md``)."""
+    if np.any(model.stage_kind == J.BALL):
+        return None
+    hinges = np.flatnonzero(model.stage_kind == J.HINGE)
+    if not len(hinges):
+        return np.zeros((model.nb, 3))
+    q = np.asarray(model.q_neutral, float)
+    S = joint_kinematics(plan(model), q)[2]
+    R = world_poses(model, q)[0].copy()
+    joint = model.stage_joint[hinges]
+    column = model.stage_v[hinges] - model.v_start[joint]
+    w = np.einsum("kab,kb->ka", R[joint], S[joint, :3, column])
+    a = w[0] / np.linalg.norm(w[0])
+    if np.abs(np.cross(w, a)).max() > 1e-12 * np.abs(w).max():
+        return None
+    return np.einsum("bji,j->bi", R, a)
+
+
 @lru_cache(maxsize=64)
 def body_arrays(model) -> tuple:
     """The model constants the passes read, as one tuple: ``mass`` (nb,), ``com``
-    (nb, 3), ``inertia`` and its inverse ``Iinv`` (nb, 3, 3), ``gravity`` (3,); the
-    springs and dampers: ``stage_kind, stage_q, stage_v, stage_stiffness`` (ns,),
-    ``q_spring`` (nq,), ``damping``, ``armature`` (nv,)."""
+    (nb, 3), ``inertia`` (nb, 3, 3), the leaves' inverse inertias ``Iinv`` (nb, 3, 3;
+    :func:`leaf_inertias`), ``gravity`` (3,); the springs and dampers:
+    ``stage_kind, stage_q, stage_v, stage_stiffness`` (ns,), ``q_spring`` (nq,),
+    ``damping``, ``armature`` (nv,); and ``refine``, the most steps of
+    :func:`refine_pass` (0 where no leaf was raised, or where every raise is square
+    to the spin axis of a planar model, :func:`spin_axes`)."""
     js = plan(model)
-    Iinv = np.linalg.inv(model.inertia)
+    Iinv, raised = leaf_inertias(model)
+    axes = spin_axes(model) if raised.any() else None
+    if axes is not None:               # planar: refine where a raise meets the spin axis
+        dI = np.linalg.inv(Iinv[raised]) - model.inertia[raised]
+        turned = np.abs(np.einsum("bij,bj->bi", dI, axes[raised])).max(axis=1)
+        raised = raised.copy()
+        raised[raised] = turned > 1e-9 * np.abs(dI).max(axis=(1, 2))
+    refine = min(2 * int(raised.sum()) + 4, MAX_REFINE) if raised.any() else 0
     return (model.mass, model.com, model.inertia, Iinv, model.gravity, js.stage_kind,
-            js.stage_q, js.stage_v, js.stage_stiffness, js.q_spring, js.damping, js.armature)
+            js.stage_q, js.stage_v, js.stage_stiffness, js.q_spring, js.damping, js.armature,
+            refine)
+
+
+@lru_cache(maxsize=64)
+def inert_arrays(model) -> tuple:
+    """:func:`body_arrays` without gravity, springs and dampers: the DCA on these at
+    zero velocity solves ``M qdd = tau`` (``M^-1 p`` of the symplectic integrator,
+    (S3) of ``docs/accuracy.md``)."""
+    b = body_arrays(model)
+    return (*b[:4], _zeros_like(b[4]), *b[5:8], _zeros_like(b[8]), b[9], _zeros_like(b[10]),
+            b[11], b[12])
+
+
+def _zeros_like(a):
+    """Zeros of ``a``'s shape, dtype and writability: the kernels' argument types
+    (hence their compiled versions) stay those of :func:`body_arrays`."""
+    z = np.zeros_like(a)
+    z.setflags(write=a.flags.writeable)
+    return z
+
+
+#: the most conjugate-gradient steps of :func:`refine_pass`
+MAX_REFINE = 40
 
 
 # --- joint forces ---------------------------------------------------------------------
@@ -205,13 +299,13 @@ def spring_force(s, stage_kind, stage_q, stage_v, stage_stiffness, q_spring, q, 
 def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
     """Blocks of body ``i``, theory (T2)-(T3) (:func:`leaf_blocks`), with ``X_h =
     X_{h<-c}`` from its centre of mass to port ``h`` and the known wrench at the
-    centre of mass (:func:`known_wrench` and ``f_ext``, body axes). The inbound
+    centre of mass (:func:`~vdad.newton_euler.body_wrench`). The inbound
     port is the body frame; the port of a child joint is that joint's child frame.
     ``X``, ``Q`` (>= ports, 6, 6): ``X_h`` and ``Ibar^-1 X_h^T``; ``tmp`` (>= 3, 6,
     6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    mass, com, inertia, Iinv, gravity = bodies[0], bodies[1], bodies[2], bodies[3], bodies[4]
+    mass, com, Iinv = bodies[0], bodies[1], bodies[3]
     R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
     P, s0 = n_ports[i], slot_base[i]
     m, c = mass[i], com[i]
@@ -223,36 +317,9 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
             port_transform(eye, zero, c, X[h])
         else:
             port_transform(R_rel[j], p_rel[j], c, X[h])
-    f, Rb = tmp[1, 0], R[i]
-    known_wrench(m, c, inertia[i], v[i], Rb, gravity, f)
-    if f_ext.shape[0] > 0:                                       # world axes -> body axes
-        for r in range(3):
-            f[r] += Rb[0, r] * f_ext[i, 0] + Rb[1, r] * f_ext[i, 1] + Rb[2, r] * f_ext[i, 2]
-            f[3 + r] += Rb[0, r] * f_ext[i, 3] + Rb[1, r] * f_ext[i, 4] + Rb[2, r] * f_ext[i, 5]
+    f = tmp[1, 0]
+    body_wrench(i, bodies, f_ext, v[i], R[i], f)
     leaf_blocks(P, pair_base[i], s0, X, Q, m, Iinv[i], f, Phi, b, tmp[1, 1])
-
-
-@inlined
-def known_wrench(m, c, I, v, R, gravity, f):
-    """The known wrench (6,) on a rigid body of mass ``m``, centre of mass ``c``
-    and inertia ``I`` about it, moving with ``v`` (its frame's velocity, at its
-    origin, body axes) at orientation ``R``: gravity minus the bias of (T3), at the
-    centre of mass, body axes: ``(-w × I w; m R^T g - m w × v_c)``."""
-    w = v[:3]
-    vc0 = v[3] + w[1] * c[2] - w[2] * c[1]
-    vc1 = v[4] + w[2] * c[0] - w[0] * c[2]
-    vc2 = v[5] + w[0] * c[1] - w[1] * c[0]
-    Iw0 = I[0, 0] * w[0] + I[0, 1] * w[1] + I[0, 2] * w[2]
-    Iw1 = I[1, 0] * w[0] + I[1, 1] * w[1] + I[1, 2] * w[2]
-    Iw2 = I[2, 0] * w[0] + I[2, 1] * w[1] + I[2, 2] * w[2]
-    f[0] = -(w[1] * Iw2 - w[2] * Iw1)
-    f[1] = -(w[2] * Iw0 - w[0] * Iw2)
-    f[2] = -(w[0] * Iw1 - w[1] * Iw0)
-    f[3] = -m * (w[1] * vc2 - w[2] * vc1)
-    f[4] = -m * (w[2] * vc0 - w[0] * vc2)
-    f[5] = -m * (w[0] * vc1 - w[1] * vc0)
-    for r in range(3):
-        f[3 + r] += m * (R[0, r] * gravity[0] + R[1, r] * gravity[1] + R[2, r] * gravity[2])
 
 
 @inlined
@@ -333,11 +400,12 @@ def reduced_inertia(T, WT, nT, K):
 
 
 @inlined
-def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, tmp):
+def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, PF_rows, tmp):
     """``beta_C`` (6,) of (T9), ``W tau - Y (W_m W tau + gamma)`` with the joint's
     forces ``tau[v0:v0 + d]``; with rotor inertia ``Ia = armature[v0:v0 + d]`` on its
     dofs, (A1)-(A2) of ``docs/joints.md``: ``P = W - Y W_m W``, ``F = (1 + Ia P^T
-    W_m W)^-1``, ``Y += P F Ia P^T`` and ``beta_C = P F tau - Y gamma``. ``tmp``
+    W_m W)^-1``, ``Y += P F Ia P^T`` and ``beta_C = P F tau - Y gamma``, with
+    ``(P F)^T`` left in ``PF_rows[v0:v0 + d]`` (for :func:`joint_rhs`). ``tmp``
     (>= 5, 6, 6): scratch."""
     Wtau, t = tmp[0, 0], tmp[0, 1]
     loaded = False
@@ -387,6 +455,7 @@ def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, tmp):
             for k in range(d):
                 acc += P[r, k] * F[k, m]
             PF[r, m] = acc
+            PF_rows[v0 + m, r] = acc
     for r in range(6):
         for s in range(6):
             acc = 0.0
@@ -403,23 +472,24 @@ def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, tmp):
 
 
 @inlined
-def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, G, GY,
-                  tmp):
+def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, G,
+                  GY, tmp):
     """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
     ``B`` joined by joint ``j``, theory (T6)-(T12): :func:`joint_node`, then
     :func:`merge_ports`. ``G``, ``GY`` (max ports, 6, 6), ``tmp`` (>= 6, 6, 6):
     scratch; ``G[a]``, ``GY[a]`` and ``W_m`` (``tmp[5]``) are left for callers that
     need them (the metric coefficients of :mod:`vdad.region`)."""
-    joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, tmp)
+    joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, tmp)
     merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY)
 
 
 @inlined
-def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, tmp):
+def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, tmp):
     """The joint ``j`` of internal node ``C = nb + i`` across its children's
     blocks, theory (T6)-(T9) with the armature (A1)-(A2): keeps ``Y``, ``beta``,
     ``gamma`` of the node (row ``i``) and ``W^T W_m`` of its joint (rows of its
-    dofs) for :func:`solve_node`; ``W_m`` is left in ``tmp[5]``. ``tmp`` (>= 6, 6,
+    dofs) for :func:`solve_node`, ``(P F)^T`` of a joint with armature (rows of its
+    dofs) for :func:`joint_rhs`; ``W_m`` is left in ``tmp[5]``. ``tmp`` (>= 6, 6,
     6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
@@ -445,7 +515,7 @@ def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma
         articulated_inverse(Wmj, Tj, 5, Yj, WT, K, Z)           # to the compiler, unrolled
     else:
         articulated_inverse(Wmj, Tj, 6 - d, Yj, WT, K, Z)
-    joint_inputs(Wmj, Yj, Wj, d, v_start[j], tau, armature, gj, bj, tmp)  # (T9), (A1)-(A2)
+    joint_inputs(Wmj, Yj, Wj, d, v_start[j], tau, armature, gj, bj, PF, tmp)  # (T9), (A1)-(A2)
     for k in range(d):                                          # for (T13): W^T W_m
         for s in range(6):
             acc = 0.0
@@ -521,6 +591,16 @@ def copy_block(Phi, base, P, a, c, out):
 
 
 @inlined
+def block_mv_add(Phi, base, P, a, c, x, s, out):
+    """``out += s Phi_ac x`` (6,) for the node of ``P`` ports whose blocks start at
+    ``base`` (``Phi_ca^T`` where ``a > c``)."""
+    if a <= c:
+        mv6_add(Phi[base + pair_offset(P, a, c)], x, s, out)
+    else:
+        mtv6_add(Phi[base + pair_offset(P, c, a)], x, s, out)
+
+
+@inlined
 def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
     """Joint ``j`` of internal node ``C = nb + i`` given the wrenches ``f_a`` on
     ``C``'s ports (from joints solved before it): ``u = sum_a G_a^T f_a``,
@@ -539,10 +619,7 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
         X, ia = slot_child[s0 + a], slot_index[s0 + a]
         jX = port_A[i] if X == left[i] else port_B[i]
         f_a, s = f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a]
-        if ia <= jX:                                   # f_a = side f_J[port]
-            mtv6_add(Phi[pair_base[X] + pair_offset(n_ports[X], ia, jX)], f_a, s, u)
-        else:                                          # stored as Phi_{j_X a}
-            mv6_add(Phi[pair_base[X] + pair_offset(n_ports[X], jX, ia)], f_a, s, u)
+        block_mv_add(Phi, pair_base[X], n_ports[X], jX, ia, f_a, s, u)  # f_a = side f_J
     fJ = f_J[j]
     mv6(Y[i], u, t)                                              # (T10)
     for r in range(6):
@@ -555,9 +632,141 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
         qdd[v_start[j] + k] = acc
 
 
+# --- refinement (docs/accuracy.md) ------------------------------------------------------
+
+@inlined
+def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, t):
+    """(T8)-(T9) of internal node ``C = nb + i`` for joint forces ``tau`` alone (no
+    velocity, no known wrenches): ``gamma = b^B_jB - b^A_jA`` and ``beta_C = W tau -
+    Y (W_m W tau + gamma)``, or ``P F tau - Y' gamma`` (A2) for a joint with
+    armature, from what :func:`joint_node` kept at this configuration: ``W_m W =
+    (W^T W_m)^T``, ``(P F)^T`` and ``Y'``. ``t`` (6,): scratch."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    v_start, nv_joint, subspace = js[6], js[7], js[15]
+    A, B, j = left[i], right[i], joint[i]
+    v0, d, Wj, gj, bj = v_start[j], nv_joint[j], kin[4][subspace[j]], gamma[i], beta[i]
+    loaded = False
+    for k in range(d):
+        loaded = loaded or armature[v0 + k] != 0.0
+    for r in range(6):                                  # (T8) without c_J
+        gj[r] = b[slot_base[B] + port_B[i], r]
+        if A >= 0:
+            gj[r] -= b[slot_base[A] + port_A[i], r]
+    for r in range(6):                                  # t = W_m W tau + gamma
+        acc = gj[r]
+        if not loaded:
+            for k in range(d):
+                acc += WtWm[v0 + k, r] * tau[v0 + k]
+        t[r] = acc
+    for r in range(6):                                  # (T9), (A2)
+        acc = 0.0
+        for s in range(6):
+            acc -= Y[i, r, s] * t[s]
+        for k in range(d):
+            acc += (PF[v0 + k, r] if loaded else Wj[r, k]) * tau[v0 + k]
+        bj[r] = acc
+
+
 @pass_kernel
-def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, beta, gamma,
-                   f_J, qdd, X, GY, tmp):
+def rhs_passes(nb, js, tree, kin, armature, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd,
+               tmp):
+    """``qdd = M^-1 tau`` (nv,) by the DCA at the configuration of its last
+    evaluation, whose blocks ``Phi``, ``Y``, ``W^T W_m``, ``(P F)^T`` it reuses: the
+    vector parts alone ((R3) of ``docs/accuracy.md``), leaves without known
+    wrenches, (T8)-(T9) by :func:`joint_rhs`, (T12), then :func:`solve_node`."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    n = post.shape[0]
+    for k in range(n):
+        node = post[k]
+        s0 = slot_base[node]
+        if node < nb:
+            for a in range(n_ports[node]):
+                for r in range(6):
+                    b[s0 + a, r] = 0.0
+            continue
+        i = node - nb
+        joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma,
+                  tmp[7, 2])
+        for a in range(n_ports[node]):                             # (T12)
+            X, ia = slot_child[s0 + a], slot_index[s0 + a]
+            jX = port_A[i] if X == left[i] else port_B[i]
+            ba = b[s0 + a]
+            for r in range(6):
+                ba[r] = b[slot_base[X] + ia, r]
+            block_mv_add(Phi, pair_base[X], n_ports[X], ia, jX, beta[i], slot_sign[s0 + a], ba)
+    for k in range(n - 1, -1, -1):
+        node = post[k]
+        if node >= nb:
+            solve_node(node - nb, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+
+
+@pass_kernel
+def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
+    """(R1)-(R3) of ``docs/accuracy.md``: the accelerations ``qdd`` (in ``work``) of
+    a DCA evaluation whose leaves were raised (:func:`leaf_inertias`), refined by
+    preconditioned conjugate gradients on ``ID(qdd) = rhs``, ``ID`` Newton-Euler
+    with the model's own inertias in ``mode``
+    (:func:`~vdad.newton_euler.inverse_dynamics_pass`;
+    :data:`~vdad.newton_euler.FULL` with the joint forces for ``rhs``: the dynamics;
+    :data:`~vdad.newton_euler.MASS`: ``M qdd = rhs``), with the DCA's solve
+    on the raised leaves (:func:`rhs_passes`) as preconditioner; at most
+    ``bodies[12]`` steps, until the preconditioned residual is below ``4 eps`` of
+    the largest acceleration. The joint wrenches ``f_J`` are those of the
+    result (Newton-Euler's, linear in ``qdd``)."""
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg = work
+    nb, armature, steps = bodies[0].shape[0], bodies[11], bodies[12]
+    x, r, z, p, Ap = cg[0], cg[1], cg[2], cg[3], cg[4]
+    w, nv = tmp[7], qdd.shape[0]
+    for i in range(nv):
+        x[i] = qdd[i]
+    inverse_dynamics_pass(js, bodies, kin, f_ext, x, mode, a, f, w, r)
+    for i in range(nv):                                       # r = rhs - ID(x)
+        r[i] = rhs[i] - r[i]
+    for j in range(nb):                                       # f_J: Newton-Euler's of x
+        for s in range(6):
+            f_J[j, s] = f[j, s]
+    rhs_passes(nb, js, tree, kin, armature, r, Phi, b, Y, WtWm, PF, beta, gamma, f, z, tmp)
+    rz = 0.0
+    for i in range(nv):
+        p[i] = z[i]
+        rz += r[i] * z[i]
+    for _ in range(steps):
+        change, size = 0.0, 0.0
+        for i in range(nv):
+            change = max(change, abs(z[i]))
+            size = max(size, abs(x[i]))
+        if not change > 4.0 * 2.220446049250313e-16 * size:
+            break
+        inverse_dynamics_pass(js, bodies, kin, f_ext, p, MASS, a, f, w, Ap)
+        pAp = 0.0
+        for i in range(nv):
+            pAp += p[i] * Ap[i]
+        if not pAp > 0.0:
+            break
+        alpha = rz / pAp
+        for i in range(nv):
+            x[i] += alpha * p[i]
+            r[i] -= alpha * Ap[i]
+        for j in range(nb):
+            for s in range(6):
+                f_J[j, s] += alpha * f[j, s]
+        rhs_passes(nb, js, tree, kin, armature, r, Phi, b, Y, WtWm, PF, beta, gamma, f, z,
+                   tmp)
+        rz_next = 0.0
+        for i in range(nv):
+            rz_next += r[i] * z[i]
+        for i in range(nv):
+            p[i] = z[i] + (rz_next / rz) * p[i]
+        rz = rz_next
+    for i in range(nv):
+        qdd[i] = x[i]
+
+
+@pass_kernel
+def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta,
+                   gamma, f_J, qdd, X, GY, tmp):
     """The DCA of one root's subtree, ``post[lo:hi]``: the leaves and the
     bottom-up pass node by node in depth-first post-order, then the top-down pass
     in the reverse order (its root has no ports: subtrees are independent)."""
@@ -567,7 +776,7 @@ def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtW
         if n < nb:
             leaf(n, tree, bodies, f_ext, kin, Phi, b, X, GY, tmp)
         else:
-            assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, WtWm, beta,
+            assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, WtWm, PF, beta,
                           gamma, X, GY, tmp)
     for k in range(hi - 1, lo - 1, -1):
         n = post[k]
@@ -580,7 +789,7 @@ PARALLEL_BODIES = 256
 
 
 @parallel_kernel
-def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, beta, gamma, f_J, qdd,
+def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd,
                   P):
     """:func:`subtree_passes` of every root's subtree of a forest, in parallel
     (numba threads): each writes only its own nodes' blocks, joints and dofs, and
@@ -589,28 +798,31 @@ def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, beta, gamm
     for r in prange(segments.shape[0] - 1):
         X, GY, tmp = np.empty((P, 6, 6)), np.empty((P, 6, 6)), np.empty((8, 6, 6))
         subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
-                       Phi, b, Y, WtWm, beta, gamma, f_J, qdd, X, GY, tmp)
+                       Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd, X, GY, tmp)
 
 
 @kernel
 def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     """The DCA on kinematics ``kin`` already computed for ``(q, qd)``: joint forces
     ``tau = tau_in - D qd - K d``, then :func:`subtree_passes` of each root's
-    subtree (in parallel for forests of :data:`PARALLEL_BODIES` bodies or more);
-    ``qdd`` ends in ``work``."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    subtree (in parallel for forests of :data:`PARALLEL_BODIES` bodies or more),
+    and :func:`refine_pass` where the model has raised leaves; ``qdd`` ends in
+    ``work``."""
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg = work
     passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
                         q, qd, tau)
     for r in range(tau_in.shape[0]):
         tau[r] += tau_in[r]
     nb, segments = bodies[0].shape[0], tree[14]
     if segments.shape[0] > 2 and nb >= PARALLEL_BODIES:
-        forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, beta, gamma, f_J, qdd,
-                      X.shape[0])
-        return
-    for r in range(segments.shape[0] - 1):
-        subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
-                       Phi, b, Y, WtWm, beta, gamma, f_J, qdd, X, GY, tmp)
+        forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J,
+                      qdd, X.shape[0])
+    else:
+        for r in range(segments.shape[0] - 1):
+            subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
+                           Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd, X, GY, tmp)
+    if bodies[12] > 0 and finite(qdd):
+        refine_pass(js, tree, bodies, f_ext, kin, work, FULL, tau)
 
 
 @pass_kernel

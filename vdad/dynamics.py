@@ -1,7 +1,8 @@
 """Forward dynamics and the generalised forces that act in joints.
 
 ``forward_dynamics`` runs the DCA (:mod:`vdad.dca`) on a balanced assembly tree
-unless another tree is given; :func:`passive_forces` gives the joint springs and
+unless another tree is given; :func:`inverse_dynamics` runs Newton-Euler
+(:mod:`vdad.newton_euler`); :func:`passive_forces` gives the joint springs and
 dampers of (T5)'s ``tau``.
 """
 
@@ -16,9 +17,10 @@ from . import joints as J
 from ._linalg import as_input, compiling
 from .assembly import AssemblyTree, check_tree
 from .checks import all_finite, check_vector, check_wrenches
-from .errors import InputError
-from .kinematics import JointSet, as_joint_set, plan
+from .errors import InputError, SimulationError
+from .kinematics import JointSet, as_joint_set, gimbal_lock, kinematics, plan
 from .model import check_configuration, check_model
+from .newton_euler import FULL, inverse_dynamics_pass
 from .spatial import quat_log, quat_mul
 
 
@@ -92,7 +94,27 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     tau = check_vector("tau", tau, model.nv, allow_none=True)
     f_ext = check_wrenches(model, f_ext)
     return check_overflow(model, forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data),
-                          qd=qd, tau=tau, f_ext=f_ext)
+                          q, qd=qd, tau=tau, f_ext=f_ext)
+
+
+def inverse_dynamics(model, q, qd, qdd, f_ext=None):
+    """The actuation ``tau`` (nv,) under which ``model`` at ``(q, qd)`` accelerates
+    by ``qdd`` (nv,), with gravity, ``f_ext`` (nb, 6; as :func:`forward_dynamics`)
+    and the joint springs and dampers: ``forward_dynamics(model, q, qd, tau, f_ext)``
+    is ``qdd``. Newton-Euler with the bodies' inertias (RBDA §5.3; (R1) of
+    ``docs/accuracy.md``), compiled."""
+    check_model(model)
+    q = check_configuration(model, "q", q)
+    qd = check_vector("qd", qd, model.nv)
+    qdd = check_vector("qdd", qdd, model.nv)
+    f_ext = check_wrenches(model, f_ext)
+    js, kin = plan(model), kinematics(model, q, qd)
+    a, f, out = np.empty((model.nb, 6)), np.empty((model.nb, 6)), np.empty(model.nv)
+    with compiling(inverse_dynamics_pass):
+        inverse_dynamics_pass(js.arrays, dca.body_arrays(model), kin.arrays,
+                              _NO_WRENCH if f_ext is None else as_input(f_ext), as_input(qdd),
+                              FULL, a, f, np.empty((2, 6)), out)
+    return out - passive_forces(js, q, qd)
 
 
 def _as_given(x, shape):
@@ -104,12 +126,17 @@ def _as_given(x, shape):
             and x.flags.c_contiguous and x.flags.writeable)
 
 
-def check_overflow(model, qdd, **inputs):
-    """``qdd`` if it is finite; else the InputError of accelerations that came out
-    non-finite from finite ``inputs`` (name: array or None): they overflowed double
-    precision. Names the first joint at fault and the size of the inputs."""
+def check_overflow(model, qdd, q, **inputs):
+    """``qdd`` if it is finite; else a SimulationError if a joint is in gimbal lock
+    at ``q`` (:func:`~vdad.kinematics.gimbal_lock`), or the InputError of
+    accelerations that came out non-finite from finite ``inputs`` (name: array or
+    None): they overflowed double precision. Names the first joint at fault and the
+    size of the inputs."""
     if all_finite(qdd):
         return qdd
+    lock = gimbal_lock(model, q)
+    if lock is not None:
+        raise SimulationError(lock)
     bad = model.dof_joint[np.flatnonzero(~np.isfinite(qdd))[0]]
     sizes = ", ".join(f"|{k}| up to {np.abs(v).max():.3g}" for k, v in inputs.items()
                       if v is not None)

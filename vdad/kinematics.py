@@ -486,3 +486,29 @@ def world_poses(model, q, out=None):
     ``out`` if given (then views of it, overwritten by the next call)."""
     kin = _evaluate(plan(model), q, kin=out)
     return kin.R, kin.p
+
+
+def gimbal_lock(model, q):
+    """Where a joint of ``model`` loses a dof at configuration ``q`` (nq,): a
+    message naming the first composite joint whose motion subspace ``S`` has lost
+    rank (a diagonal entry of its QR factor below ``64 eps`` of the largest, the
+    test of :func:`~vdad._linalg.complement`), its coordinates and what to do; None
+    if there is none. The joint-space inertia is singular there, so no
+    accelerations exist."""
+    multi = np.flatnonzero(model.n_stages_joint > 1)
+    if not len(multi) or not np.all(np.isfinite(q)):
+        return None
+    S = joint_kinematics(plan(model), np.asarray(q, float))[2]
+    for j in multi:
+        d = int(model.nv_joint[j])
+        R = np.abs(np.diag(np.linalg.qr(S[j, :, :d])[1]))
+        if R.min() <= 64 * np.finfo(float).eps * R.max():
+            i0 = model.q_start[j]
+            coordinates = np.array2string(np.asarray(q[i0:i0 + model.nq_joint[j]]),
+                                          precision=6)
+            rank = int(np.sum(R > 64 * np.finfo(float).eps * R.max()))
+            return (f"joint {model.joint_names[j]!r} is in gimbal lock at q = {coordinates}: "
+                    f"its {d} axes span only {rank} directions, so the joint-space inertia is "
+                    f"singular and the accelerations are undefined; model the joint as a "
+                    f"ball joint (quaternion), or keep it away from this configuration")
+    return None

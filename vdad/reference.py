@@ -147,4 +147,4 @@ def aba(model, q, qd, tau=None, f_ext=None):
         a_p = Xup[i] @ (_a0(model) if p < 0 else a[p]) + c[i]
         qdd[dofs[i]] = Dinv[i] @ (u[i] - U[i].T @ a_p)
         a[i] = a_p + Sj[i] @ qdd[dofs[i]]
-    return check_overflow(model, qdd, qd=qd, tau=tau)
+    return check_overflow(model, qdd, q, qd=qd, tau=tau)

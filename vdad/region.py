@@ -52,7 +52,6 @@ from .dca import (
     assemble_node,
     copy_block,
     joint_node,
-    known_wrench,
     leaf_blocks,
     pair_offset,
     solve_node,
@@ -63,6 +62,7 @@ from .heaps import heap_pop, heap_push, sort_ascending
 from .hybrid import carry_forces, freeze_node
 from .integrators import normalize_stage, stage_nq, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
+from .newton_euler import known_wrench
 
 #: indices of :attr:`RegionData.counts`
 N_VISIT, N_JOINTS, ASSEMBLED, FRONT, SOLVED, ACCELERATED, LOOKAHEAD, RIGIDIFIED, RELEASED = \
@@ -212,7 +212,7 @@ def group_leaf(F, tree, groups, gravity, kin, RF, pF, Rw, vF, impulse, hF, Phi, 
     frame, whose pose ``(R_rel[k], p_rel[k])`` the kinematics give in a frame at
     ``(RF, pF)`` in ``F``'s (the identity but for the look-ahead). The known
     wrench at the centre of mass: gravity and bias for orientation ``Rw`` and
-    velocity ``vF`` (:func:`~vdad.dca.known_wrench`), plus the external sums
+    velocity ``vF`` (:func:`~vdad.newton_euler.known_wrench`), plus the external sums
     (moment ``R^T N + vee(K R)`` about the origin, force ``R^T F``); with
     ``impulse``, the momentum ``hF`` (6,) instead (the locking impulse). ``X``, ``Q``
     (>= ports, 6, 6), ``tmp`` (>= 5, 6, 6): scratch."""
@@ -451,7 +451,7 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
     locking impulse instead (leaves from the front's momenta ``h``, ``c_J = 0``,
     ``tau = 0``, every active node solved), whose result are the new ``qd`` of the
     active joints. Returns whether ``qdd`` is finite."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
      la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
     stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
@@ -476,7 +476,7 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
     for e in range(n_visit):                            # bottom-up: front leaves, (T6)-(T12)
         n = visit[e]
         if n >= nb and active[n]:
-            assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta,
+            assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta,
                           gamma, X, GY, tmp)
             if first and predictive and not impulse:
                 metric_node(n - nb, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta,
@@ -594,7 +594,7 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
     :func:`~vdad.dca.joint_node` and :func:`~vdad.dca.solve_node` on ``j``. Writes
     only rows that rigid nodes and joints own (and restores ``qdd = 0`` on ``j``);
     ``la`` is NaN on the other front nodes."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp = work
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
@@ -667,7 +667,7 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
             tau[k] = tau_in[k]
         for s in range(stage0[j], stage0[j] + n_stages[j]):
             spring_force(s, stage_kind, stage_q, stage_v, bodies[8], q_spring, q, tau)
-        joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, beta, gamma, tmp)
+        joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, tmp)
         solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
         val = 0.0
         for k in range(v_start[j], v_start[j] + nv_joint[j]):
