@@ -130,7 +130,9 @@ def _method_options(parser):
                         "asleep when slow (sleeping) (default dca); every method runs with "
                         "the scene's defaults (docs/scenes.md), shown in the summary")
     parser.add_argument("--integrator", choices=sorted(INTEGRATORS), default="semi-implicit",
-                        help="time integrator (default semi-implicit Euler)")
+                        help="time integrator (default semi-implicit Euler; symplectic: "
+                        "symplectic Euler in momentum form, bounded energy, for --method dca "
+                        "on hinges and slides, docs/accuracy.md)")
     adaptive = parser.add_argument_group(
         "adaptive dynamics", "with --method adaptive, view-bvh or view-oq: --threshold or "
         "--budget (view methods: in pixels times displacement per step; default: the "

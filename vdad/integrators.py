@@ -14,10 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from ._linalg import as_input, inlined, kernel, pass_kernel, quaternion_step
-from .dca import dynamics_pass
+from .dca import dynamics_pass, passive_forces_pass, refine_pass, rhs_passes
 from .errors import InputError
 from .forces import body_forces
-from .kinematics import as_joint_set
+from .kinematics import as_joint_set, kinematics_pass
+from .newton_euler import APPLIED, MASS, inverse_dynamics_pass, kinetic_gradient_pass
 
 
 @inlined
@@ -142,11 +143,15 @@ def rk4(space, accel, t, q, qd, dt):
             qd + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v))
 
 
-INTEGRATORS = {"semi-implicit": semi_implicit_euler, "rk4": rk4}
+#: the integrators by name; ``"symplectic"`` (symplectic Euler in momentum form,
+#: (S1)-(S3) of ``docs/accuracy.md``) exists only in the compiled step loop
+#: (:func:`symplectic_step`)
+INTEGRATORS = {"semi-implicit": semi_implicit_euler, "rk4": rk4, "symplectic": None}
 
 
 def get_integrator(name):
-    """The integrator called ``name`` (``"semi-implicit"`` or ``"rk4"``)."""
+    """The integrator called ``name`` (``"semi-implicit"``, ``"rk4"`` or
+    ``"symplectic"``, which has no Python function: None)."""
     if not isinstance(name, str) or name not in INTEGRATORS:
         raise InputError(f"unknown integrator {name!r}; choose one of {sorted(INTEGRATORS)}")
     return INTEGRATORS[name]
@@ -167,32 +172,110 @@ def accelerations(js, tree, bodies, F, e, t, q, qd, kin, work, states, f_ext, ta
         out[i] = qdd[i]
 
 
+#: integration schemes of :func:`dca_steps`
+SEMI_IMPLICIT, RK4, SYMPLECTIC = 0, 1, 2
+#: the most fixed-point iterations of a symplectic step, and their tolerance
+#: (relative to the largest velocity; they also stop where a change is no smaller
+#: than the one before: the rounding of the DCA's solve, about cond(M) eps)
+SYMPLECTIC_ITERATIONS, SYMPLECTIC_TOLERANCE = 50, 1e-14
+
+
+@inlined
+def velocities_of(js, tree, inert, q, p, zero, no_wrench, kin, work):
+    """``qd = M(q)^-1 p`` (nv) into ``work``'s ``qdd``: the DCA on the model's
+    ``inert`` arrays (:func:`~vdad.dca.inert_arrays`) at zero velocity with joint
+    forces ``p`` ((S3) of ``docs/accuracy.md``), refined where leaves are raised."""
+    kinematics_pass(js, q, zero, True, *kin)
+    dynamics_pass(js, tree, inert, q, zero, p, no_wrench, kin, work)
+
+
+@inlined
+def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, kin, work,
+                    states, f_ext, no_wrench, tau, scratch, q_new, qd_new):
+    """One step of symplectic Euler in momentum form ((S1)-(S3) of
+    ``docs/accuracy.md``), for joints of hinge and slide stages: with ``qd = M(q)^-1
+    p`` (:func:`velocities_of`, into ``qd``) and the forces at ``(q, qd)`` (the
+    tables ``F`` at evaluation ``e``, gravity, springs, dampers: ``g``),
+    ``p' = p + dt (dT/dq(q, qd') + g)`` with ``qd' = M(q)^-1 p'`` by fixed-point
+    iteration from ``2 qd - previous`` (until a change is below
+    :data:`SYMPLECTIC_TOLERANCE` of the largest velocity or no smaller than the one
+    before), then ``q' = q ⊕ dt qd'``. Leaves ``p'`` in
+    ``p``, ``qd`` in ``previous``, ``q'``, ``qd'`` in ``q_new``, ``qd_new``.
+    ``no_wrench`` (0, 6): no external wrench; ``scratch`` (4, nv): ``0`` (zero),
+    ``g``, ``dT/dq``, ``p'``."""
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau_w, X, GY, tmp, PF, a, f, cg = work
+    zero, g, dT, p_next = scratch[0], scratch[1], scratch[2], scratch[3]
+    nv, nb = qd.shape[0], f.shape[0]
+    velocities_of(js, tree, inert, q, p, zero, no_wrench, kin, work)
+    for i in range(nv):
+        qd[i] = qdd[i]
+    body_forces(js, F, e, t, q, qd, kin, states, f_ext, tau)          # kinematics at (q, qd)
+    passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10], q,
+                        qd, g)
+    inverse_dynamics_pass(js, bodies, kin, f_ext, zero, APPLIED, a, f, tmp[7], dT)
+    for i in range(nv):                                 # g = tau + passive + J^T applied
+        g[i] += tau[i] - dT[i]
+        qd_new[i] = 2.0 * qd[i] - previous[i]
+        previous[i] = qd[i]
+    last = np.inf
+    for _ in range(SYMPLECTIC_ITERATIONS):
+        inverse_dynamics_pass(js, bodies, kin, no_wrench, qd_new, MASS, a, f, tmp[7], dT)
+        kinetic_gradient_pass(js, kin[2], a, f, qd_new, dT)
+        for i in range(nv):
+            p_next[i] = p[i] + dt * (dT[i] + g[i])
+        rhs_passes(nb, js, tree, kin, inert[11], p_next, Phi, b, Y, WtWm, PF, beta, gamma, f_J,
+                   qdd, tmp)
+        if inert[12] > 0:
+            refine_pass(js, tree, inert, no_wrench, kin, work, MASS, p_next)
+        change, size = 0.0, 1e-300
+        for i in range(nv):
+            change = max(change, abs(qdd[i] - qd_new[i]))
+            size = max(size, abs(qdd[i]))
+            qd_new[i] = qdd[i]
+        if not (change > SYMPLECTIC_TOLERANCE * size and change < last):
+            break
+        last = change
+    for i in range(nv):
+        p[i] = p_next[i]
+    configuration_step(bodies[5], bodies[6], bodies[7], q, qd_new, dt, q_new)
+
+
 @kernel
-def dca_steps(n, dt, step0, use_rk4, js, tree, bodies, rotational, F, q, qd, kin, work,
+def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, qd, kin, work,
               q_new, qd_new):
     """Up to ``n`` steps of the DCA from step number ``step0`` (``t = step dt``),
     with the model's own forces (gravity, joint springs and dampers) and the
     built-in force elements of the tables ``F`` (:meth:`~vdad.forces.ForceTables.
-    arrays`, evaluation ``e = step * evaluations + k`` of the chunk), by
-    semi-implicit Euler or (``use_rk4``) RK4, as :func:`semi_implicit_euler` and
-    :func:`rk4`, updating ``q``, ``qd`` in place. Stops at a step whose state is not
-    finite (status 1) or that turns a rotational dof by more than half a turn
-    (status 2), leaving that step's state in ``q_new``, ``qd_new``. Returns
-    ``(steps done, status)``."""
+    arrays`, evaluation ``e = step * evaluations + k`` of the chunk), by ``scheme``:
+    semi-implicit Euler or RK4, as :func:`semi_implicit_euler` and :func:`rk4`, or
+    symplectic Euler in momentum form (:func:`symplectic_step`; ``inert``:
+    :func:`~vdad.dca.inert_arrays`), updating ``q``, ``qd`` in place. Stops at a
+    step whose state is not finite (status 1) or that turns a rotational dof by
+    more than half a turn (status 2), leaving that step's state in ``q_new``,
+    ``qd_new``. Returns ``(steps done, status)``."""
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
     nq, nv, nb = q.shape[0], qd.shape[0], bodies[0].shape[0]
     kq = np.empty((4, nq))
     kv = np.empty((4, nv))
     qs, vs = np.empty(nq), np.empty(nv)
     states, f_ext, tau = np.empty((2, nb, 3)), np.empty((nb, 6)), np.empty(nv)
+    p, previous, scratch = np.empty(nv), qd.copy(), np.zeros((4, nv))
+    no_wrench = np.empty((0, 6))
+    if scheme == SYMPLECTIC:                                       # p = M(q) qd
+        kinematics_pass(js, q, qd, True, *kin)
+        inverse_dynamics_pass(js, bodies, kin, no_wrench, qd, MASS, work[13], work[14],
+                              work[11][7], p)
     for step in range(n):
         t = (step0 + step) * dt
-        if not use_rk4:
+        if scheme == SEMI_IMPLICIT:
             accelerations(js, tree, bodies, F, step, t, q, qd, kin, work, states, f_ext, tau,
                           kv[0])
             for i in range(nv):
                 qd_new[i] = qd[i] + dt * kv[0, i]
             configuration_step(stage_kind, stage_q, stage_v, q, qd_new, dt, q_new)
+        elif scheme == SYMPLECTIC:
+            symplectic_step(step, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, kin,
+                            work, states, f_ext, no_wrench, tau, scratch, q_new, qd_new)
         else:
             for k in range(4):
                 h = 0.0 if k == 0 else (dt if k == 3 else dt / 2)
@@ -220,6 +303,10 @@ def dca_steps(n, dt, step0, use_rk4, js, tree, bodies, rotational, F, q, qd, kin
             q[i] = q_new[i]
         for i in range(nv):
             qd[i] = qd_new[i]
+    if scheme == SYMPLECTIC:                                       # qd = M(q)^-1 p
+        velocities_of(js, tree, inert, q, p, scratch[0], no_wrench, kin, work)
+        for i in range(nv):
+            qd[i] = work[7][i]
     return n, 0
 
 

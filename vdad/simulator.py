@@ -27,11 +27,21 @@ from .dynamics import default_tree, forward_dynamics_unchecked
 from .environment import check_environment
 from .errors import InputError, SimulationError
 from .forces import Forces, ForceTables
-from .integrators import dca_steps, evaluation_times, get_integrator, normalize_configuration
-from .kinematics import plan, world_poses
+from .integrators import (
+    RK4,
+    SEMI_IMPLICIT,
+    SYMPLECTIC,
+    dca_steps,
+    evaluation_times,
+    get_integrator,
+    normalize_configuration,
+)
+from .kinematics import gimbal_lock, plan, world_poses
 from .model import body_indices, check_configuration, check_model
 
 METHODS = ("dca", "adaptive", "view-bvh", "view-oq", "lod-distance", "sleeping")
+#: the compiled step loop's scheme of each integrator (:func:`~vdad.integrators.dca_steps`)
+SCHEMES = {"semi-implicit": SEMI_IMPLICIT, "rk4": RK4, "symplectic": SYMPLECTIC}
 METHOD_OPTIONS = {"view-bvh": ("volume", "estimate", "pixels", "resolution"),
                   "view-oq": ("counting", "pixels", "resolution"),
                   "lod-distance": ("distance",),
@@ -207,7 +217,10 @@ class Simulator:
     gives its calibrated ones first. ``options`` holds the values used (empty
     for ``"dca"``). An option that no method takes, or one that this method does
     not take, is an :class:`InputError` that lists what it takes.
-    integrator: ``"semi-implicit"`` (symplectic Euler) or ``"rk4"``.
+    integrator: ``"semi-implicit"`` (Euler: velocities first), ``"rk4"``, or
+    ``"symplectic"``: symplectic Euler in momentum form, whose energy error stays
+    bounded (``docs/accuracy.md``; the DCA method on hinges and slides, with vdad's
+    own force elements).
     tree: assembly tree (default: balanced; for the adaptive methods on a model
     with a floating base, and for the baselines, the balanced tree with every
     joint to the world assembled last, :func:`~vdad.baselines.root_last_tree`:
@@ -268,6 +281,27 @@ class Simulator:
             elif method == "sleeping":
                 adaptive_options["coverage"] = Sleeping(self.tree, **view)
             self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
+        if integrator == "symplectic":
+            self._check_symplectic()
+
+    def _check_symplectic(self):
+        """The symplectic integrator's conditions (:func:`~vdad.integrators.
+        symplectic_step`), or an InputError naming what is not met."""
+        what = "integrator 'symplectic' (symplectic Euler in momentum form)"
+        if self.method != "dca":
+            raise InputError(f"{what} runs the DCA only; use method='dca', or integrator "
+                             f"'semi-implicit' or 'rk4' with method {self.method!r}")
+        model = self.model
+        bad = np.flatnonzero(model.stage_kind > 1)
+        if len(bad):
+            joint = model.joint_names[model.stage_joint[bad[0]]]
+            raise InputError(f"{what} needs joints of hinges and slides (coordinates whose "
+                             f"rates are the velocities); joint {joint!r} has a ball or a "
+                             f"translation stage: use integrator 'semi-implicit' or 'rk4'")
+        if self.force_tables() is None:
+            raise InputError(f"{what} runs in compiled code with vdad's own force elements "
+                             f"(vdad.forces.Forces) as controller and external; Python "
+                             f"callables need integrator 'semi-implicit' or 'rk4'")
 
     def body_poses(self, bodies=None):
         """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of ``bodies`` (names or indices;
@@ -401,10 +435,11 @@ class Simulator:
 
     def _compiled_steps(self, n):
         rk4 = self._rk4
+        scheme = SCHEMES[self.integrator_name]
         q_new, qd_new = np.empty_like(self.q), np.empty_like(self.qd)
         q, qd = self.q.copy(), self.qd.copy()
         args = (plan(self.model).arrays, self.tree.arrays, dca.body_arrays(self.model),
-                self._rotational)
+                dca.inert_arrays(self.model), self._rotational)
         while n > 0:
             m = min(n, self.CHUNK)
             try:
@@ -414,7 +449,7 @@ class Simulator:
                 self.q, self.qd = q, qd
                 return self._python_steps(n)
             with compiling(dca_steps):
-                done, status = dca_steps(m, self.dt, self.step_count, rk4, *args, F, q, qd,
+                done, status = dca_steps(m, self.dt, self.step_count, scheme, *args, F, q, qd,
                                          self.data.kin.arrays, self.data.arrays, q_new, qd_new)
             self.q, self.qd = q.copy(), qd.copy()
             self._advance(done)
@@ -449,6 +484,9 @@ class Simulator:
                    if self.controller is not None or self.external is not None else ""))
 
     def _blow_up(self, q, qd):
+        lock = gimbal_lock(self.model, self.q)
+        if lock is not None:
+            raise SimulationError(f"step {self.step_count + 1} (t = {self.t:.6g} s): {lock}")
         bad = np.flatnonzero(~np.isfinite(qd))
         if len(bad):
             joint = self.model.joint_names[self.model.dof_joint[bad[0]]]
