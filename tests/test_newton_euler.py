@@ -25,6 +25,16 @@ def test_inverse_dynamics_equals_the_reference_rnea_and_inverts_the_dca(seed):
     assert relative_error(tau_back, reference.rnea(model, q, qd, qdd, f_ext)) < 1e-12
 
 
+def momenta(model, q, qd):
+    """The kinematics of ``(q, qd)`` and inverse_dynamics_pass in mode MASS with
+    ``x = qd``: body velocities ``a``, subtree momenta ``f``, ``M qd``."""
+    kin = kinematics(model, q, qd)
+    a, f, out = np.empty((model.nb, 6)), np.empty((model.nb, 6)), np.empty(model.nv)
+    inverse_dynamics_pass(plan(model).arrays, dca.body_arrays(model), kin.arrays,
+                          np.zeros((0, 6)), qd, MASS, a, f, np.empty((2, 6)), out)
+    return kin, a, f, out
+
+
 def test_without_velocity_terms_the_pass_is_the_mass_matrix_product():
     """inverse_dynamics_pass in mode MASS is M x (the CRBA's, armature
     included) and leaves the body motions of x in ``a`` and the transmitted
@@ -34,11 +44,7 @@ def test_without_velocity_terms_the_pass_is_the_mass_matrix_product():
 
     model = with_armature(random_tree(2, n=8, composite=True), 2)
     q, qd, _, _ = random_state(model, 2)
-    kin = kinematics(model, q, qd)
-    a, f, w, out = (np.empty((model.nb, 6)), np.empty((model.nb, 6)), np.empty((2, 6)),
-                    np.empty(model.nv))
-    inverse_dynamics_pass(plan(model).arrays, dca.body_arrays(model), kin.arrays,
-                          np.zeros((0, 6)), qd, MASS, a, f, w, out)
+    kin, a, f, out = momenta(model, q, qd)
     M = reference.crba(model, q)
     np.testing.assert_allclose(out, M @ qd, rtol=0, atol=1e-13 * np.abs(M @ qd).max())
     np.testing.assert_allclose(a, kin.v, rtol=0, atol=1e-13 * np.abs(kin.v).max())
@@ -67,11 +73,7 @@ def test_kinetic_gradient_is_the_derivative_of_the_kinetic_energy():
                                              root="revolute"), 3),
                   thin_rod(0.5, "composite", com=(0.1, 0.2, 0.3))):
         q, qd, _, _ = random_state(model, 3)
-        kin = kinematics(model, q, qd)
-        a, f, w, out = (np.empty((model.nb, 6)), np.empty((model.nb, 6)), np.empty((2, 6)),
-                        np.empty(model.nv))
-        inverse_dynamics_pass(plan(model).arrays, dca.body_arrays(model), kin.arrays,
-                              np.zeros((0, 6)), qd, MASS, a, f, w, out)
+        kin, a, f, _ = momenta(model, q, qd)
         dT = np.empty(model.nv)
         kinetic_gradient_pass(plan(model).arrays, kin.S, a, f, qd, dT)
         h = 1e-6

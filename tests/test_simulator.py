@@ -48,24 +48,27 @@ def test_semi_implicit_euler_energy_stays_bounded():
 
 def test_the_symplectic_integrator_keeps_the_energy_of_a_long_run_bounded():
     """docs/accuracy.md, (S1)-(S3): the scene's 20-link pendulum (0.1 kg, 0.1 m
-    links, from 1 rad, dt = 1 ms) over 20000 steps. Semi-implicit Euler's energy
-    error grows (1.7 % of n m g L by step 2000, diverging at 48287); symplectic
-    Euler in momentum form keeps it bounded: no larger over the second half than
-    the first, and an order of magnitude below semi-implicit Euler's."""
+    links, from 1 rad) at dt = 0.25 ms over 40000 steps, where the fixed point of
+    every step contracts. Semi-implicit Euler's energy error grows (3.6e-2 of
+    n m g L in the first half, 9.7e-2 in the second); symplectic Euler in momentum
+    form keeps it bounded (1.5e-3, 1.6e-3). At dt = 1 ms the iteration stops
+    contracting at the whip's fastest states and the energy drifts
+    (docs/accuracy.md)."""
     scene = pendulum()
     scale = scene.model.nb * 0.1 * 9.81 * 0.1
     errors = {}
     for integrator in ("semi-implicit", "symplectic"):
-        sim = scene.simulator(integrator=integrator)
+        sim = scene.simulator(integrator=integrator, dt=2.5e-4)
         E0 = total_energy(scene.model, sim.q, sim.qd)
         worst = []
         for _ in range(20):
-            sim.step(1000)
+            sim.step(2000)
             worst.append(abs(total_energy(scene.model, sim.q, sim.qd) - E0) / scale)
         errors[integrator] = np.array(worst)
-    symplectic = errors["symplectic"]
+    symplectic, euler = errors["symplectic"], errors["semi-implicit"]
     assert symplectic[10:].max() < 1.5 * symplectic[:10].max()
-    assert symplectic.max() * 10 < errors["semi-implicit"].max()
+    assert euler[10:].max() > 2 * euler[:10].max()
+    assert symplectic.max() * 10 < euler.max()
 
 
 def test_the_symplectic_integrator_converges_to_the_trajectory():

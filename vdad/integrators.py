@@ -176,8 +176,11 @@ def accelerations(js, tree, bodies, F, e, t, q, qd, kin, work, states, f_ext, ta
 SEMI_IMPLICIT, RK4, SYMPLECTIC = 0, 1, 2
 #: the most fixed-point iterations of a symplectic step, and their tolerance
 #: (relative to the largest velocity; they also stop where a change is no smaller
-#: than the one before: the rounding of the DCA's solve, about cond(M) eps)
-SYMPLECTIC_ITERATIONS, SYMPLECTIC_TOLERANCE = 50, 1e-14
+#: than the one before: the rounding of the DCA's solve, about cond(M) eps, if
+#: below SYMPLECTIC_ACCEPT; else the iteration does not contract, and the step is
+#: taken again in 2, 4, ... 2^SYMPLECTIC_HALVINGS substeps)
+SYMPLECTIC_ITERATIONS, SYMPLECTIC_TOLERANCE, SYMPLECTIC_ACCEPT = 50, 1e-14, 1e-8
+SYMPLECTIC_HALVINGS = 6
 
 
 @inlined
@@ -199,7 +202,8 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
     ``p' = p + dt (dT/dq(q, qd') + g)`` with ``qd' = M(q)^-1 p'`` by fixed-point
     iteration from ``2 qd - previous`` (until a change is below
     :data:`SYMPLECTIC_TOLERANCE` of the largest velocity or no smaller than the one
-    before), then ``q' = q ⊕ dt qd'``. Leaves ``p'`` in
+    before), then ``q' = q ⊕ dt qd'``. Returns whether the iteration converged (its
+    last change below :data:`SYMPLECTIC_ACCEPT` of the largest velocity). Leaves ``p'`` in
     ``p``, ``qd`` in ``previous``, ``q'``, ``qd'`` in ``q_new``, ``qd_new``.
     ``no_wrench`` (0, 6): no external wrench; ``scratch`` (4, nv): ``0`` (zero),
     ``g``, ``dT/dq``, ``p'``."""
@@ -217,7 +221,7 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
         g[i] += tau[i] - dT[i]
         qd_new[i] = 2.0 * qd[i] - previous[i]
         previous[i] = qd[i]
-    last = np.inf
+    last, change, size = np.inf, np.inf, 1e-300
     for _ in range(SYMPLECTIC_ITERATIONS):
         inverse_dynamics_pass(js, bodies, kin, no_wrench, qd_new, MASS, a, f, tmp[7], dT)
         kinetic_gradient_pass(js, kin[2], a, f, qd_new, dT)
@@ -238,6 +242,7 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
     for i in range(nv):
         p[i] = p_next[i]
     configuration_step(bodies[5], bodies[6], bodies[7], q, qd_new, dt, q_new)
+    return change <= SYMPLECTIC_ACCEPT * size
 
 
 @kernel
@@ -251,8 +256,9 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
     symplectic Euler in momentum form (:func:`symplectic_step`; ``inert``:
     :func:`~vdad.dca.inert_arrays`), updating ``q``, ``qd`` in place. Stops at a
     step whose state is not finite (status 1) or that turns a rotational dof by
-    more than half a turn (status 2), leaving that step's state in ``q_new``,
-    ``qd_new``. Returns ``(steps done, status)``."""
+    more than half a turn (status 2), or whose symplectic step does not converge
+    even in ``2^SYMPLECTIC_HALVINGS`` substeps (status 3), leaving that step's state
+    in ``q_new``, ``qd_new``. Returns ``(steps done, status)``."""
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
     nq, nv, nb = q.shape[0], qd.shape[0], bodies[0].shape[0]
     kq = np.empty((4, nq))
@@ -260,7 +266,7 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
     qs, vs = np.empty(nq), np.empty(nv)
     states, f_ext, tau = np.empty((2, nb, 3)), np.empty((nb, 6)), np.empty(nv)
     p, previous, scratch = np.empty(nv), qd.copy(), np.zeros((4, nv))
-    no_wrench = np.empty((0, 6))
+    no_wrench, start = np.empty((0, 6)), np.empty((3, max(nq, nv)))
     if scheme == SYMPLECTIC:                                       # p = M(q) qd
         kinematics_pass(js, q, qd, True, *kin)
         inverse_dynamics_pass(js, bodies, kin, no_wrench, qd, MASS, work[13], work[14],
@@ -273,9 +279,34 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
             for i in range(nv):
                 qd_new[i] = qd[i] + dt * kv[0, i]
             configuration_step(stage_kind, stage_q, stage_v, q, qd_new, dt, q_new)
-        elif scheme == SYMPLECTIC:
-            symplectic_step(step, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, kin,
-                            work, states, f_ext, no_wrench, tau, scratch, q_new, qd_new)
+        elif scheme == SYMPLECTIC:                 # in 2^level substeps where it must
+            for i in range(nq):
+                start[0, i] = q[i]
+            for i in range(nv):
+                start[1, i] = p[i]
+                start[2, i] = previous[i]
+            converged = True
+            for level in range(SYMPLECTIC_HALVINGS + 1):
+                k = 1 << level
+                for i in range(nq):
+                    qs[i] = start[0, i]
+                for i in range(nv):
+                    p[i] = start[1, i]
+                    previous[i] = start[2, i]
+                converged = True
+                for sub in range(k):
+                    converged = symplectic_step(step, t + sub * dt / k, dt / k, js, tree,
+                                                bodies, inert, F, qs, qd, p, previous, kin,
+                                                work, states, f_ext, no_wrench, tau, scratch,
+                                                q_new, qd_new)
+                    for i in range(nq):
+                        qs[i] = q_new[i]
+                    if not converged:
+                        break
+                if converged:
+                    break
+            if not converged:
+                return step, 3
         else:
             for k in range(4):
                 h = 0.0 if k == 0 else (dt if k == 3 else dt / 2)

@@ -31,6 +31,7 @@ from .integrators import (
     RK4,
     SEMI_IMPLICIT,
     SYMPLECTIC,
+    SYMPLECTIC_HALVINGS,
     dca_steps,
     evaluation_times,
     get_integrator,
@@ -453,6 +454,11 @@ class Simulator:
                                          self.data.kin.arrays, self.data.arrays, q_new, qd_new)
             self.q, self.qd = q.copy(), qd.copy()
             self._advance(done)
+            if status == 3:
+                raise SimulationError(
+                    f"step {self.step_count + 1} (t = {self.t:.6g} s): the symplectic step's "
+                    f"fixed-point iteration does not converge, even in "
+                    f"{2 ** SYMPLECTIC_HALVINGS} substeps: reduce the time step")
             if status:
                 self._check_step(q_new, qd_new)
             n -= m
