@@ -223,13 +223,13 @@ def body_arrays(model) -> tuple:
     to the spin axis of a planar model, :func:`spin_axes`)."""
     js = plan(model)
     Iinv, raised = leaf_inertias(model)
+    refined = raised.copy()                   # the raises that change M
     axes = spin_axes(model) if raised.any() else None
     if axes is not None:               # planar: refine where a raise meets the spin axis
         dI = np.linalg.inv(Iinv[raised]) - model.inertia[raised]
         turned = np.abs(np.einsum("bij,bj->bi", dI, axes[raised])).max(axis=1)
-        raised = raised.copy()
-        raised[raised] = turned > 1e-9 * np.abs(dI).max(axis=(1, 2))
-    refine = min(2 * int(raised.sum()) + 4, MAX_REFINE) if raised.any() else 0
+        refined[raised] = turned > 1e-9 * np.abs(dI).max(axis=(1, 2))
+    refine = min(2 * int(refined.sum()) + 4, MAX_REFINE) if refined.any() else 0
     return (model.mass, model.com, model.inertia, Iinv, model.gravity, js.stage_kind,
             js.stage_q, js.stage_v, js.stage_stiffness, js.q_spring, js.damping, js.armature,
             refine)
@@ -400,6 +400,15 @@ def reduced_inertia(T, WT, nT, K):
 
 
 @inlined
+def has_armature(armature, v0, d):
+    """Whether a joint's dofs ``v0 .. v0 + d`` carry rotor inertia (A1)-(A2)."""
+    for k in range(d):
+        if armature[v0 + k] != 0.0:
+            return True
+    return False
+
+
+@inlined
 def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, PF_rows, tmp):
     """``beta_C`` (6,) of (T9), ``W tau - Y (W_m W tau + gamma)`` with the joint's
     forces ``tau[v0:v0 + d]``; with rotor inertia ``Ia = armature[v0:v0 + d]`` on its
@@ -408,9 +417,7 @@ def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, PF_rows, tmp):
     ``(P F)^T`` left in ``PF_rows[v0:v0 + d]`` (for :func:`joint_rhs`). ``tmp``
     (>= 5, 6, 6): scratch."""
     Wtau, t = tmp[0, 0], tmp[0, 1]
-    loaded = False
-    for k in range(d):
-        loaded = loaded or armature[v0 + k] != 0.0
+    loaded = has_armature(armature, v0, d)
     for r in range(6):
         acc = 0.0
         for k in range(d):
@@ -646,9 +653,7 @@ def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, 
     v_start, nv_joint, subspace = js[6], js[7], js[15]
     A, B, j = left[i], right[i], joint[i]
     v0, d, Wj, gj, bj = v_start[j], nv_joint[j], kin[4][subspace[j]], gamma[i], beta[i]
-    loaded = False
-    for k in range(d):
-        loaded = loaded or armature[v0 + k] != 0.0
+    loaded = has_armature(armature, v0, d)
     for r in range(6):                                  # (T8) without c_J
         gj[r] = b[slot_base[B] + port_B[i], r]
         if A >= 0:

@@ -257,8 +257,9 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
     :func:`~vdad.dca.inert_arrays`), updating ``q``, ``qd`` in place. Stops at a
     step whose state is not finite (status 1) or that turns a rotational dof by
     more than half a turn (status 2), or whose symplectic step does not converge
-    even in ``2^SYMPLECTIC_HALVINGS`` substeps (status 3), leaving that step's state
-    in ``q_new``, ``qd_new``. Returns ``(steps done, status)``."""
+    even in ``2^SYMPLECTIC_HALVINGS`` substeps (status 3, ``q``, ``qd`` left at that
+    step's start), leaving that step's state in ``q_new``, ``qd_new``. Returns
+    ``(steps done, status)``."""
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
     nq, nv, nb = q.shape[0], qd.shape[0], bodies[0].shape[0]
     kq = np.empty((4, nq))
@@ -305,7 +306,12 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
                         break
                 if converged:
                     break
-            if not converged:
+            if not converged:                      # the step's start, qd = M(q)^-1 p
+                for i in range(nv):
+                    p[i] = start[1, i]
+                velocities_of(js, tree, inert, q, p, scratch[0], no_wrench, kin, work)
+                for i in range(nv):
+                    qd[i] = work[7][i]
                 return step, 3
         else:
             for k in range(4):
