@@ -46,7 +46,7 @@ def test_large_forests_run_their_trees_in_parallel_with_the_same_result():
     qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext, tree=tree)
     assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
     serial = vdad.dca.make_data(tree)
-    passes = (vdad.kinematics.plan(model).arrays, tree.arrays, dca.body_arrays(model))
+    passes = (vdad.kinematics.plan(model).arrays, serial.layout, dca.body_arrays(model))
     dca.kinematics_pass(passes[0], q, qd, True, *serial.kin.arrays)
     Phi, b, Y, Wm, beta, gamma, f_J, qdd_s, tau_s, X, GY, tmp, PF = serial.arrays[:13]
     dca.passive_forces_pass(*passes[2][5:11], q, qd, tau_s)
@@ -54,10 +54,47 @@ def test_large_forests_run_their_trees_in_parallel_with_the_same_result():
     for r in range(len(tree.segments) - 1):
         dca.subtree_passes(tree.segments[r], tree.segments[r + 1], model.nb, *passes[:2],
                            passes[2], f_ext, serial.kin.arrays, tau_s, Phi, b, Y, Wm, PF,
-                           beta, gamma, f_J, qdd_s, X, GY, tmp)
+                           beta, gamma, f_J, qdd_s, serial.G, X, GY, tmp)
     if passes[2][12]:                                # raised leaves: refined as one forest
         dca.refine_pass(*passes, f_ext, serial.kin.arrays, serial.arrays)
     np.testing.assert_array_equal(qdd, qdd_s)
+
+
+@pytest.mark.parametrize("order", ["balanced", "sequential", "random"])
+@pytest.mark.parametrize("model", ["forest", "parallel forest", "thin bodies"])
+def test_stacked_blocks_give_the_result_of_every_block_kept(model, order):
+    """The default data keeps only the blocks live in the bottom-up pass
+    (AssemblyTree.stack_arrays): the same arithmetic, so the same accelerations to
+    the last bit as with every block kept, in a store of a few blocks per depth;
+    node_blocks asks for kept blocks."""
+    model = {"forest": lambda: with_armature(random_tree(3, n=30, roots=3, composite=True), 3),
+             "parallel forest": lambda: random_tree(5, n=dca.PARALLEL_BODIES + 20, roots=12),
+             "thin bodies": lambda: thin_chain(12, [1.0, 1.0, 1e-8])}[model]()
+    tree = {"balanced": AssemblyTree.balanced, "sequential": AssemblyTree.sequential,
+            "random": lambda m: AssemblyTree(m, np.random.default_rng(1).permutation(m.nb))
+            }[order](model)
+    q, qd, tau, f_ext = random_state(model, 6)
+    stacked, kept = dca.make_data(tree), dca.make_data(tree, keep_blocks=True)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext, tree=tree, data=stacked)
+    np.testing.assert_array_equal(
+        qdd, vdad.forward_dynamics(model, q, qd, tau, f_ext, tree=tree, data=kept))
+    assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
+    pair_base, n_blocks = tree.stack_arrays[0][6], tree.stack_arrays[1]
+    assert len(stacked.Phi) == n_blocks
+    pairs = tree.n_ports * (tree.n_ports + 1) // 2
+    depth = tree.depth + 2 if order == "sequential" else 2 * (tree.depth + 2)
+    roots = len(tree.segments) - 1
+    assert n_blocks <= roots * depth * pairs.max() and n_blocks <= tree.n_pairs
+    live = {}                                  # no two live nodes share a block
+    for n in tree.post:
+        if n >= model.nb:
+            for c in (tree.left[n - model.nb], tree.right[n - model.nb]):
+                live.pop(c, None)
+        mine = set(range(pair_base[n], pair_base[n] + pairs[n]))
+        assert all(not mine & other for other in live.values())
+        live[n] = mine
+    with pytest.raises(vdad.InputError, match="keep_blocks=True"):
+        dca.node_blocks(tree, stacked, model.nb)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -94,7 +131,7 @@ def test_port_inverse_inertia_is_J_Minv_JT():
     rng = np.random.default_rng(7)
     q = random_configuration(model, rng)
     tree = AssemblyTree.balanced(model)
-    data = dca.make_data(tree)
+    data = dca.make_data(tree, keep_blocks=True)
     vdad.forward_dynamics(model, q, np.zeros(model.nv), tree=tree, data=data)
     kin = kinematics(model, q, np.zeros(model.nv))
     checked = 0
@@ -139,7 +176,7 @@ def test_a_joint_of_six_dofs_gathers_its_childrens_blocks():
     for model, zero in ((base, True), (with_armature(base, 4), False)):
         q, qd, tau, f_ext = random_state(model, 4)
         tree = AssemblyTree.balanced(model)
-        data = dca.make_data(tree)
+        data = dca.make_data(tree, keep_blocks=True)
         qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext, tree=tree, data=data)
         assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
         nb, checked = model.nb, 0

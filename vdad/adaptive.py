@@ -257,7 +257,7 @@ class AdaptiveDynamics:
             r.pinned[node] = True
             node = tree.up[node]
             node = node[node >= 0]
-        self.data = make_data(tree)
+        self.data = make_data(tree, keep_blocks=True)
         self.kin = self.data.kin
         self._pose_kin = Kinematics.empty(plan(model))
         # the step's force sources (controller, external, compiled tables) and the

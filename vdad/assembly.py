@@ -106,7 +106,8 @@ class AssemblyTree(Immutable):
     internal nodes), ``up`` (parent node of every node, -1 at the roots),
     ``top`` (top body of every node: the body whose parent is outside it; -1 when
     the node holds a ground leaf), ``n_ports`` (per node; ``max_ports``),
-    ``pair_base``, ``slot_base`` (per node: its first block and slot), ``n_pairs``
+    ``pair_base``, ``slot_base`` (per node: its first block and slot; the
+    internal nodes' ``n_inner_slots`` slots first), ``n_pairs``
     (the store of the blocks ``a <= c`` only, ``docs/design.md``), ``slot_joint``,
     ``slot_side`` (per slot: its port), ``port_A``, ``port_B`` (per internal
     node: where its joint's port is in A's and B's ports), ``slot_child``,
@@ -225,12 +226,19 @@ class AssemblyTree(Immutable):
         self.post = np.array(depth_first(nb, self.left, self.right), np.int64)
         ends = np.flatnonzero(self.up[self.post] < 0) + 1       # after each root
         self.segments = np.concatenate([[0], ends]).astype(np.int64)
-        for n in self.post:                 # stored in the order the passes visit them
-            P = len(self.ports[n])
-            pair_base[n], slot_base[n] = npair, nslt
+        n_inner = sum(len(self.ports[n]) for n in range(nb, n_nodes))
+        for n in self.post:                 # stored in the order the passes visit them,
+            P = len(self.ports[n])          # the internal nodes' slots first
+            pair_base[n] = npair
             npair += P * (P + 1) // 2
-            nslt += P
-        self.n_pairs, self.n_slots = npair, nslt
+            if n >= nb:
+                slot_base[n] = nslt
+                nslt += P
+        for n in self.post:
+            if n < nb:
+                slot_base[n] = nslt
+                nslt += len(self.ports[n])
+        self.n_pairs, self.n_slots, self.n_inner_slots = npair, nslt, n_inner
         self.pair_base, self.slot_base = pair_base, slot_base
         self.n_ports = np.array([len(p) for p in self.ports], int)
         self.max_ports = int(self.n_ports.max())
@@ -266,6 +274,43 @@ class AssemblyTree(Immutable):
             self.left, self.right, self.joint, self.port_A, self.port_B, self.n_ports,
             self.pair_base, self.slot_base, self.slot_joint, self.slot_side, self.slot_child,
             self.slot_index, self.slot_sign, self.post, self.segments))
+
+    @cached_property
+    def stack_arrays(self) -> tuple:
+        """:attr:`arrays` with ``pair_base`` for a store that keeps only the blocks
+        live in the bottom-up pass (``docs/design.md``, "Block storage"), then the
+        number of blocks that store holds: ``(arrays, n_blocks)``. A node's blocks
+        live from its evaluation to its parent's. In post-order the live nodes of one
+        depth parity form a stack, and a node (one parity) is written while its
+        children (the other) are read: each node is placed on its parity's stack
+        above the live nodes of that parity. Each root's subtree has stacks of its
+        own (subtrees run in parallel)."""
+        depth = np.zeros(self.n_nodes, np.int64)
+        for n in self.post[::-1]:                          # parents before children
+            if self.up[n] >= 0:
+                depth[n] = depth[self.up[n]] + 1
+        pairs = self.n_ports * (self.n_ports + 1) // 2
+        base = np.zeros(self.n_nodes, np.int64)
+        parity = depth % 2
+        total = 0
+        for lo, hi in zip(self.segments[:-1], self.segments[1:], strict=True):
+            tops, extent = [0, 0], [0, 0]                  # per parity: stack top, extent
+            for n in self.post[lo:hi]:
+                if n >= self.model.nb:                     # its children leave the stack
+                    for c in (self.right[n - self.model.nb], self.left[n - self.model.nb]):
+                        if c != GROUND:
+                            tops[parity[c]] = base[c]
+                p = parity[n]
+                base[n] = tops[p]
+                tops[p] += pairs[n]
+                extent[p] = max(extent[p], tops[p])
+            odd = parity[self.post[lo:hi]] == 1            # parity 1 after parity 0
+            base[self.post[lo:hi][odd]] += extent[0]
+            base[self.post[lo:hi]] += total
+            total += extent[0] + extent[1]
+        arrays = list(self.arrays)
+        arrays[6] = base
+        return tuple(arrays), total
 
     def __repr__(self):
         return (f"AssemblyTree(bodies={self.model.nb}, depth={self.depth}, "

@@ -19,13 +19,17 @@ transform between its two sides and every quantity is translation-invariant
 Storage (:class:`~vdad.assembly.AssemblyTree`): node ``n`` with ``P`` ports owns
 the blocks ``Phi_ac``, ``a <= c``, at ``Phi[pair_base[n] + pair_offset(P, a, c)]``
 (6, 6; ``Phi_ca = Phi_ac^T`` is not stored) and the slots ``b[slot_base[n] + a]``
-(6,); a ground leaf has none (``Phi = 0``, ``b = 0``); :func:`node_blocks` gives a
-node's whole ``Phi``.
+(6,); a ground leaf has none (``Phi = 0``, ``b = 0``). ``pair_base`` is the
+data's layout (:func:`make_data`): every node's blocks kept (:func:`node_blocks`
+gives a node's whole ``Phi``), or only those live in the bottom-up pass, in
+stacks (``docs/design.md``, "Block storage").
 Signed column blocks: for a port ``a`` of ``C`` taken from child ``X`` (``A`` or
 ``B``), ``G_a = s_a Phi^X_{a j_X}`` with ``s_a = -1`` on ``alpha`` and ``+1`` on
 ``beta``. Then (T11)-(T12) read ``Phi^C_{ac} = Phi^X_{ac} [same child] - G_a Y
 G_c^T`` and ``b^C_a = b^X_a + G_a beta_C``, and (T10), (T13) read ``f_J = beta_C
-- Y u``, ``r = u + gamma`` with ``u = sum_a G_a^T f_a``.
+- Y u``, ``r = u + gamma`` with ``u = sum_a G_a^T f_a``: the top-down pass reads
+``G_a`` (kept unsigned in the slots of ``C``, ``G[slot_base[C] + a]``: the
+internal nodes' slots come first) and no block of ``Phi``.
 """
 
 from __future__ import annotations
@@ -72,14 +76,17 @@ class DCAData:
     brackets), allocated once by :func:`make_data` and reused.
 
     kin: the :class:`~vdad.kinematics.Kinematics` of the state.
-    Phi [n_pairs, 6, 6], b [n_slots, 6]: block stores of the tree (blocks ``a <= c``).
+    Phi [n_pairs or fewer, 6, 6], b [n_slots, 6]: block stores of the tree (blocks
+    ``a <= c``) in the layout ``layout`` (the tree's arrays with the ``pair_base``
+    of this store); G [n_inner_slots, 6, 6]: ``G_a`` of every internal node's ports.
     Y [nb, 6, 6], beta, gamma [nb, 6]: per internal node, the intermediates kept
     for the top-down pass, with WtWm [nv, 6]: ``W^T W_m`` of each joint, a row per
     dof (what (T13) needs of ``W_m``), and PF [nv, 6]: ``(P F)^T`` of (A2) for the
     joints with armature. f_J [nb, 6]: joint wrenches; qdd [nv]: joint
     accelerations; tau [nv]: the joint forces of the last evaluation (springs,
     dampers and actuation). X, GY [max ports, 6, 6], tmp [8, 6, 6]: scratch;
-    a, f [nb, 6], cg [5, nv]: scratch of :func:`refine_pass`.
+    a, f [nb, 6], cg [5, nv]: scratch of :func:`refine_pass`. ``kept``: whether
+    ``Phi`` keeps every node's blocks.
     """
 
     kin: Kinematics
@@ -99,22 +106,31 @@ class DCAData:
     a: np.ndarray
     f: np.ndarray
     cg: np.ndarray
+    G: np.ndarray
+    layout: tuple
+    kept: bool
 
     @property
     def arrays(self) -> tuple:
         return (self.Phi, self.b, self.Y, self.WtWm, self.beta, self.gamma, self.f_J, self.qdd,
-                self.tau, self.X, self.GY, self.tmp, self.PF, self.a, self.f, self.cg)
+                self.tau, self.X, self.GY, self.tmp, self.PF, self.a, self.f, self.cg, self.G)
 
 
-def make_data(tree) -> DCAData:
-    """Allocate the work arrays for ``tree``."""
+def make_data(tree, keep_blocks=False) -> DCAData:
+    """Allocate the work arrays for ``tree``. ``keep_blocks``: keep every node's
+    blocks ``Phi`` after an evaluation (for :func:`node_blocks`, and for adaptive
+    dynamics, which reads its front nodes' blocks across steps); else only those
+    live in the bottom-up pass are stored, in stacks of a few dozen blocks per
+    root (:attr:`~vdad.assembly.AssemblyTree.stack_arrays`): the top-down pass needs
+    none of them, and a large tree's step then moves a third of the bytes."""
     model = tree.model
     nb, nv, P = model.nb, model.nv, tree.max_ports
+    layout, n_blocks = (tree.arrays, tree.n_pairs) if keep_blocks else tree.stack_arrays
     z = np.zeros
-    return DCAData(Kinematics.empty(plan(model)), z((tree.n_pairs, 6, 6)), z((tree.n_slots, 6)),
+    return DCAData(Kinematics.empty(plan(model)), z((n_blocks, 6, 6)), z((tree.n_slots, 6)),
                    z((nb, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(nv), z(nv),
                    z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)),
-                   z((5, nv)))
+                   z((5, nv)), z((tree.n_inner_slots, 6, 6)), layout, bool(keep_blocks))
 
 
 def check_data(tree, data):
@@ -124,7 +140,7 @@ def check_data(tree, data):
         raise InputError(f"data must be vdad.dca.DCAData from make_data(tree), got "
                          f"{type(data).__name__}")
     model = tree.model
-    if (len(data.Phi) != tree.n_pairs or len(data.b) != tree.n_slots
+    if (data.layout[13] is not tree.arrays[13] or len(data.b) != tree.n_slots
             or len(data.f_J) != model.nb or len(data.qdd) != model.nv
             or len(data.X) < tree.max_ports):
         raise InputError(f"data was allocated for another assembly tree than this one (of "
@@ -145,6 +161,10 @@ def node_blocks(tree, data, node):
         store = data
     else:
         store = check_data(tree, data).Phi
+        if not data.kept:
+            raise InputError("this data keeps only the blocks live in the bottom-up pass; "
+                             "allocate it with make_data(tree, keep_blocks=True) to read "
+                             "every node's blocks")
     node = check_count("node", node, minimum=0)
     if node >= tree.n_nodes:
         raise InputError(f"node must be below the tree's {tree.n_nodes} nodes (bodies "
@@ -483,9 +503,10 @@ def assemble_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta
                   GY, tmp):
     """Internal node ``C = nb + i``: sub-assemblies ``A`` (``-1``: the ground) and
     ``B`` joined by joint ``j``, theory (T6)-(T12): :func:`joint_node`, then
-    :func:`merge_ports`. ``G``, ``GY`` (max ports, 6, 6), ``tmp`` (>= 6, 6, 6):
-    scratch; ``G[a]``, ``GY[a]`` and ``W_m`` (``tmp[5]``) are left for callers that
-    need them (the metric coefficients of :mod:`vdad.region`)."""
+    :func:`merge_ports`, which keeps ``G_a`` in ``G`` (n_inner_slots, 6, 6). ``GY`` (max
+    ports, 6, 6), ``tmp`` (>= 6, 6, 6): scratch; ``GY[a]`` and ``W_m`` (``tmp[5]``)
+    are left for callers that need them (the metric coefficients of
+    :mod:`vdad.region`)."""
     joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, tmp)
     merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY)
 
@@ -532,27 +553,40 @@ def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, g
 
 
 @inlined
+def port_blocks(i, nb, tree, Phi, G):
+    """``G_a = s_a Phi^X_{a j_X}`` of (T11) for every port ``a`` of internal node
+    ``C = nb + i``, kept unsigned in ``G[slot_base[C] + a]`` (6, 6): what the
+    top-down pass (T10), (T13) reads of the children's blocks."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    A, jA, jB, s0 = left[i], port_A[i], port_B[i], slot_base[nb + i]
+    for a in range(n_ports[nb + i]):
+        X, ia = slot_child[s0 + a], slot_index[s0 + a]
+        copy_block(Phi, pair_base[X], n_ports[X], ia, jA if X == A else jB, G[s0 + a])
+
+
+@inlined
 def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
     """(T11)-(T12) of internal node ``C = nb + i`` over its ports ``a, c`` with
-    ``G_a = s_a Phi^X_{a j_X}``, kept unsigned in ``G[a]``, and ``GY[a] = G[a] Y``
-    (max ports, 6, 6), after :func:`joint_node`. A joint of six dofs without
+    ``G_a`` of :func:`port_blocks` and ``GY[a] = G_a Y`` (max ports, 6, 6), after
+    :func:`joint_node`. A joint of six dofs without
     armature has ``Y = 0`` ((T7) with an empty ``T``), so (T11) gathers the
     children's blocks and skips the products (the free root joint of a floating
     tree, merged with the torso's seven ports: 27 of a dog's 95 merge products)."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    C, A, jA, jB, Yj, bj = nb + i, left[i], port_A[i], port_B[i], Y[i], beta[i]
+    C, Yj, bj = nb + i, Y[i], beta[i]
     P, s0 = n_ports[C], slot_base[C]
     free = is_zero6(Yj)             # a joint of six dofs: (T11) only gathers blocks
+    port_blocks(i, nb, tree, Phi, G)
     for a in range(P):
         X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]
-        copy_block(Phi, pair_base[X], n_ports[X], ia, jA if X == A else jB, G[a])
         if free:
             zero6(GY[a])
         else:
-            mm6(G[a], Yj, GY[a])
+            mm6(G[s0 + a], Yj, GY[a])
         ba = b[s0 + a]
-        mv6(G[a], bj, ba)                                        # (T12)
+        mv6(G[s0 + a], bj, ba)                                   # (T12)
         for r in range(6):
             ba[r] = b[slot_base[X] + ia, r] + sa * ba[r]
     for a in range(P):                                           # (T11), a <= c
@@ -569,9 +603,9 @@ def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
                 continue
             sign = -slot_sign[s0 + a] * slot_sign[s0 + cc]       # - G_a Y G_c^T
             if cc == a:
-                mmt6_add_symmetric(GY[a], G[cc], sign, Cac)
+                mmt6_add_symmetric(GY[a], G[s0 + cc], sign, Cac)
             else:
-                mmt6_add(GY[a], G[cc], sign, Cac)
+                mmt6_add(GY[a], G[s0 + cc], sign, Cac)
 
 
 @inlined
@@ -598,19 +632,10 @@ def copy_block(Phi, base, P, a, c, out):
 
 
 @inlined
-def block_mv_add(Phi, base, P, a, c, x, s, out):
-    """``out += s Phi_ac x`` (6,) for the node of ``P`` ports whose blocks start at
-    ``base`` (``Phi_ca^T`` where ``a > c``)."""
-    if a <= c:
-        mv6_add(Phi[base + pair_offset(P, a, c)], x, s, out)
-    else:
-        mtv6_add(Phi[base + pair_offset(P, c, a)], x, s, out)
-
-
-@inlined
-def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
+def solve_node(i, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp):
     """Joint ``j`` of internal node ``C = nb + i`` given the wrenches ``f_a`` on
-    ``C``'s ports (from joints solved before it): ``u = sum_a G_a^T f_a``,
+    ``C``'s ports (from joints solved before it) and ``G_a`` of its ports
+    (:func:`port_blocks`): ``u = sum_a G_a^T f_a``,
     ``f_J = beta_C - Y u`` (T10), ``qdd = W^T (W_m f_J + u + gamma)`` (T13).
     ``tmp`` (>= 2, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
@@ -623,10 +648,8 @@ def solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp):
         u[r] = 0.0
     s0 = slot_base[C]
     for a in range(n_ports[C]):                        # u += s_a Phi^X_{a j_X}^T f_a
-        X, ia = slot_child[s0 + a], slot_index[s0 + a]
-        jX = port_A[i] if X == left[i] else port_B[i]
         f_a, s = f_J[slot_joint[s0 + a]], slot_sign[s0 + a] * slot_side[s0 + a]
-        block_mv_add(Phi, pair_base[X], n_ports[X], jX, ia, f_a, s, u)  # f_a = side f_J
+        mtv6_add(G[s0 + a], f_a, s, u)                 # f_a = side f_J
     fJ = f_J[j]
     mv6(Y[i], u, t)                                              # (T10)
     for r in range(6):
@@ -674,10 +697,10 @@ def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, 
 
 
 @pass_kernel
-def rhs_passes(nb, js, tree, kin, armature, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd,
+def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma, f_J, qdd,
                tmp):
     """``qdd = M^-1 tau`` (nv,) by the DCA at the configuration of its last
-    evaluation, whose blocks ``Phi``, ``Y``, ``W^T W_m``, ``(P F)^T`` it reuses: the
+    evaluation, whose ``G_a``, ``Y``, ``W^T W_m``, ``(P F)^T`` it reuses: the
     vector parts alone ((R3) of ``docs/accuracy.md``), leaves without known
     wrenches, (T8)-(T9) by :func:`joint_rhs`, (T12), then :func:`solve_node`."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
@@ -696,15 +719,14 @@ def rhs_passes(nb, js, tree, kin, armature, tau, Phi, b, Y, WtWm, PF, beta, gamm
                   tmp[7, 2])
         for a in range(n_ports[node]):                             # (T12)
             X, ia = slot_child[s0 + a], slot_index[s0 + a]
-            jX = port_A[i] if X == left[i] else port_B[i]
             ba = b[s0 + a]
             for r in range(6):
                 ba[r] = b[slot_base[X] + ia, r]
-            block_mv_add(Phi, pair_base[X], n_ports[X], ia, jX, beta[i], slot_sign[s0 + a], ba)
+            mv6_add(G[s0 + a], beta[i], slot_sign[s0 + a], ba)
     for k in range(n - 1, -1, -1):
         node = post[k]
         if node >= nb:
-            solve_node(node - nb, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+            solve_node(node - nb, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
 
 
 @pass_kernel
@@ -720,7 +742,7 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
     ``bodies[12]`` steps, until the preconditioned residual is below ``4 eps`` of
     the largest acceleration. The joint wrenches ``f_J`` are those of the
     result (Newton-Euler's, linear in ``qdd``)."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg = work
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg, G = work
     nb, armature, steps = bodies[0].shape[0], bodies[11], bodies[12]
     x, r, z, p, Ap = cg[0], cg[1], cg[2], cg[3], cg[4]
     w, nv = tmp[7], qdd.shape[0]
@@ -732,7 +754,7 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
     for j in range(nb):                                       # f_J: Newton-Euler's of x
         for s in range(6):
             f_J[j, s] = f[j, s]
-    rhs_passes(nb, js, tree, kin, armature, r, Phi, b, Y, WtWm, PF, beta, gamma, f, z, tmp)
+    rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z, tmp)
     rz = 0.0
     for i in range(nv):
         p[i] = z[i]
@@ -757,7 +779,7 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
         for j in range(nb):
             for s in range(6):
                 f_J[j, s] += alpha * f[j, s]
-        rhs_passes(nb, js, tree, kin, armature, r, Phi, b, Y, WtWm, PF, beta, gamma, f, z,
+        rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z,
                    tmp)
         rz_next = 0.0
         for i in range(nv):
@@ -771,7 +793,7 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
 
 @pass_kernel
 def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta,
-                   gamma, f_J, qdd, X, GY, tmp):
+                   gamma, f_J, qdd, G, X, GY, tmp):
     """The DCA of one root's subtree, ``post[lo:hi]``: the leaves and the
     bottom-up pass node by node in depth-first post-order, then the top-down pass
     in the reverse order (its root has no ports: subtrees are independent)."""
@@ -782,11 +804,11 @@ def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtW
             leaf(n, tree, bodies, f_ext, kin, Phi, b, X, GY, tmp)
         else:
             assemble_node(n - nb, nb, tree, js, kin, tau, bodies[11], Phi, b, Y, WtWm, PF, beta,
-                          gamma, X, GY, tmp)
+                          gamma, G, GY, tmp)
     for k in range(hi - 1, lo - 1, -1):
         n = post[k]
         if n >= nb:
-            solve_node(n - nb, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+            solve_node(n - nb, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
 
 
 #: forests of at least this many bodies run their trees' subtrees in parallel
@@ -795,7 +817,7 @@ PARALLEL_BODIES = 256
 
 @parallel_kernel
 def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd,
-                  P):
+                  G, P):
     """:func:`subtree_passes` of every root's subtree of a forest, in parallel
     (numba threads): each writes only its own nodes' blocks, joints and dofs, and
     takes its own scratch (``P``: the most ports of a node)."""
@@ -803,7 +825,7 @@ def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta, 
     for r in prange(segments.shape[0] - 1):
         X, GY, tmp = np.empty((P, 6, 6)), np.empty((P, 6, 6)), np.empty((8, 6, 6))
         subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
-                       Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd, X, GY, tmp)
+                       Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd, G, X, GY, tmp)
 
 
 @kernel
@@ -813,7 +835,7 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     subtree (in parallel for forests of :data:`PARALLEL_BODIES` bodies or more),
     and :func:`refine_pass` where the model has raised leaves; ``qdd`` ends in
     ``work``."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg = work
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg, G = work
     passive_forces_pass(bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], bodies[10],
                         q, qd, tau)
     for r in range(tau_in.shape[0]):
@@ -821,11 +843,11 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     nb, segments = bodies[0].shape[0], tree[14]
     if segments.shape[0] > 2 and nb >= PARALLEL_BODIES:
         forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J,
-                      qdd, X.shape[0])
+                      qdd, G, X.shape[0])
     else:
         for r in range(segments.shape[0] - 1):
             subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
-                           Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd, X, GY, tmp)
+                           Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd, G, X, GY, tmp)
     if bodies[12] > 0 and finite(qdd):
         refine_pass(js, tree, bodies, f_ext, kin, work, FULL, tau)
 

@@ -156,7 +156,7 @@ def _evaluate(model, q, qd, tau, f_ext, tree, data):
     """:func:`~vdad.dca.dca_pass` into ``data``; whether the inputs and ``qdd``
     are all finite."""
     with compiling(dca.dca_pass):
-        return dca.dca_pass(plan(model).arrays, tree.arrays, dca.body_arrays(model),
+        return dca.dca_pass(plan(model).arrays, data.layout, dca.body_arrays(model),
                             as_input(q), as_input(qd), _NO_TAU if tau is None else as_input(tau),
                             _NO_WRENCH if f_ext is None else as_input(f_ext), data.kin.arrays,
                             data.arrays)

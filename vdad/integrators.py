@@ -207,7 +207,7 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
     ``p``, ``qd`` in ``previous``, ``q'``, ``qd'`` in ``q_new``, ``qd_new``.
     ``no_wrench`` (0, 6): no external wrench; ``scratch`` (4, nv): ``0`` (zero),
     ``g``, ``dT/dq``, ``p'``."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau_w, X, GY, tmp, PF, a, f, cg = work
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau_w, X, GY, tmp, PF, a, f, cg, G = work
     zero, g, dT, p_next = scratch[0], scratch[1], scratch[2], scratch[3]
     nv, nb = qd.shape[0], f.shape[0]
     velocities_of(js, tree, inert, q, p, zero, no_wrench, kin, work)
@@ -227,7 +227,7 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
         kinetic_gradient_pass(js, kin[2], a, f, qd_new, dT)
         for i in range(nv):
             p_next[i] = p[i] + dt * (dT[i] + g[i])
-        rhs_passes(nb, js, tree, kin, inert[11], p_next, Phi, b, Y, WtWm, PF, beta, gamma, f_J,
+        rhs_passes(nb, js, tree, kin, inert[11], p_next, G, b, Y, WtWm, PF, beta, gamma, f_J,
                    qdd, tmp)
         if inert[12] > 0:
             refine_pass(js, tree, inert, no_wrench, kin, work, MASS, p_next)

@@ -54,6 +54,7 @@ from .dca import (
     joint_node,
     leaf_blocks,
     pair_offset,
+    port_blocks,
     solve_node,
     spring_force,
 )
@@ -274,7 +275,8 @@ def zero_blocks(F, tree, Phi, b):
 def metric_node(i, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta, gamma, Wm, G, GY, H, M,
                 mt):
     """The metric coefficients (T16)-(T18) of internal node ``C = nb + i``, after
-    :func:`~vdad.dca.assemble_node` (which leaves ``W_m``, ``G[a]``, ``GY[a]``), in
+    :func:`~vdad.dca.assemble_node` (which leaves ``W_m``, ``G_a`` in ``G``'s slots
+    of ``C``, ``GY[a]``), in
     the block form of ``docs/adaptive.md``: ``Psi^C_ac = Psi^X_ac [same child] +
     s_a s_c ((G_a Z - H_a Y) G_c^T - G_a Y H_c^T)``, ``p^C_a = p^X_a + s_a (2 H_a
     beta - G_a r)``, ``eta^C = g^T D g + beta^T Psi_m beta + p_m·beta + eta^A +
@@ -359,11 +361,11 @@ def metric_node(i, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta, gamma, W
                 for s in range(6):
                     H[a, r, s] = 0.0
         mv6(H[a], bj, tv)
-        mv6(G[a], rv, t2)
+        mv6(G[s0 + a], rv, t2)
         pa = p[s0 + a]
         for r in range(6):
             pa[r] = (p[slot_base[X] + ia, r] if X_in else 0.0) + sa * (2.0 * tv[r] - t2[r])
-        mm6(G[a], Z, M[a])                               # M_a = G_a Z - H_a Y
+        mm6(G[s0 + a], Z, M[a])                          # M_a = G_a Z - H_a Y
         mm6(H[a], Yj, T1)
         for r in range(6):
             for s in range(6):
@@ -379,7 +381,7 @@ def metric_node(i, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta, gamma, W
                     for s in range(6):
                         out[r, s] = 0.0
             sign = sa * slot_sign[s0 + cc]
-            mmt6_add(M[a], G[cc], sign, out)
+            mmt6_add(M[a], G[s0 + cc], sign, out)
             mmt6_add(GY[a], H[cc], -sign, out)
             if cc == a:
                 symmetric_part(out, out)
@@ -452,6 +454,7 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
     ``tau = 0``, every active node solved), whose result are the new ``qd`` of the
     active joints. Returns whether ``qdd`` is finite."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
+    G = work[16]
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
      la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
     stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
@@ -477,10 +480,10 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
         n = visit[e]
         if n >= nb and active[n]:
             assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta,
-                          gamma, X, GY, tmp)
+                          gamma, G, GY, tmp)
             if first and predictive and not impulse:
                 metric_node(n - nb, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta,
-                            gamma, tmp[5], X, GY, H, M, mt)
+                            gamma, tmp[5], G, GY, H, M, mt)
         else:
             front_leaf(n, tree, groups, gravity, kin, top, impulse, h, Phi, b, X, GY, tmp)
     if first and locking and not impulse:              # (T15) of the state, for descend
@@ -501,7 +504,7 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
                 go = budget > 0 or descend(n, locking, step, dwell, dt, keep, region)
             desc[n] = go
         if go:
-            solve_node(n - nb, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+            solve_node(n - nb, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
             solved += 1
             e -= 1
             continue
@@ -595,6 +598,7 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
     only rows that rigid nodes and joints own (and restores ``qdd = 0`` on ``j``);
     ``la`` is NaN on the other front nodes."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
+    G = work[16]
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
@@ -668,7 +672,8 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
         for s in range(stage0[j], stage0[j] + n_stages[j]):
             spring_force(s, stage_kind, stage_q, stage_v, bodies[8], q_spring, q, tau)
         joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, tmp)
-        solve_node(i, nb, tree, js, kin, Phi, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+        port_blocks(i, nb, tree, Phi, G)
+        solve_node(i, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
         val = 0.0
         for k in range(v_start[j], v_start[j] + nv_joint[j]):
             val += wA[k] * qdd[k] * qdd[k]

@@ -439,7 +439,7 @@ class Simulator:
         scheme = SCHEMES[self.integrator_name]
         q_new, qd_new = np.empty_like(self.q), np.empty_like(self.qd)
         q, qd = self.q.copy(), self.qd.copy()
-        args = (plan(self.model).arrays, self.tree.arrays, dca.body_arrays(self.model),
+        args = (plan(self.model).arrays, self.data.layout, dca.body_arrays(self.model),
                 dca.inert_arrays(self.model), self._rotational)
         while n > 0:
             m = min(n, self.CHUNK)
