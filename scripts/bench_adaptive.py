@@ -4,11 +4,13 @@ Pendulums of 300, 1000 and 10000 bodies (``vdad.scenes.pendulum``) released from
 1 rad. Each adaptive run holds a fixed number of active joints: budget mode with
 no look-ahead and no dwell, so the first step keeps the ``budget`` joints of
 highest metric and rigidifies the rest for good; the time per step is then
-measured on the following steps. The compiled full DCA (``Simulator.step``) and
-MuJoCo's ``mj_step`` (where it compiles the model) are timed in the same run,
-and so are threshold 0 (everything active) and the cost of the region updates
-of a threshold run. Writes ``docs/bench_adaptive.json`` and the section between
-the markers of ``docs/benchmarks.md``. Usage: ``python scripts/bench_adaptive.py
+measured on the following steps. The compiled full DCA (``Simulator.step``),
+MuJoCo's ``mj_step`` (where it compiles the model) and threshold 0 (everything
+active) are timed in turns with them, a batch of each per round (this shared
+VM's speed drifts by tens of per cent within a minute), and the cost of the
+region updates of a threshold run is timed after. Writes
+``docs/bench_adaptive.json`` and the section between the markers of
+``docs/benchmarks.md``. Usage: ``python scripts/bench_adaptive.py
 [--quick]``.
 """
 
@@ -23,7 +25,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_dynamics import DOCS, fmt, write_section
+from bench_dynamics import DOCS, fmt, medians_us, write_section
 
 import vdad
 from vdad.adaptive import METRICS
@@ -43,23 +45,24 @@ VARIANTS = {"look-ahead, hysteresis, drop lock (default)": {},
 MUJOCO_MAX = 1000                          # mj compiles chains up to ~1000 (anchors §1)
 
 
-def ms_per_step(sim, steps, repeats):
-    """Median ms per step over ``repeats`` chunks of ``steps`` steps."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        sim.step(steps)
-        times.append((time.perf_counter() - t0) / steps)
-    return 1e3 * statistics.median(times)
-
-
-def time_adaptive(scene, active, metric, steps, repeats):
-    sim = scene.simulator(method="adaptive", budget=active, dwell=0, lookahead=False,
-                          metric=metric)
-    sim.step(3)                                   # settle the region
-    t = ms_per_step(sim, steps, repeats)
-    held = [s.active_joints for s in sim.history[3:]]
-    return t, float(np.mean(held))
+def simulators(scene):
+    """The runs timed in turns on ``scene``: the full DCA (``"full"``), adaptive
+    dynamics holding each number of active joints with each metric (``(active,
+    metric)``), and threshold 0 with each metric (``("zero", metric)``, 300 bodies
+    only), each after three steps that settle its region."""
+    n = scene.model.nb
+    sims = {"full": scene.simulator()}
+    for active in [a for a in ACTIVE if a <= n]:
+        for metric in METRICS:
+            sims[(active, metric)] = scene.simulator(method="adaptive", budget=active, dwell=0,
+                                                     lookahead=False, metric=metric)
+    if n == 300:
+        for metric in METRICS:
+            sims[("zero", metric)] = scene.simulator(method="adaptive", threshold=0.0,
+                                                     metric=metric)
+    for sim in sims.values():
+        sim.step(3)
+    return sims
 
 
 def fixed_and_per_node(rows, n):
@@ -87,7 +90,9 @@ def region_cost(steps):
                 us_quiet_step=statistics.median(quiet) if quiet else None)
 
 
-def time_mujoco_step(model, steps, repeats):
+def mujoco_steps(model, steps):
+    """A call of ``steps`` ``mj_step`` on ``model`` (None where MuJoCo is not tried),
+    and a note."""
     if model.nb > MUJOCO_MAX:
         return None, f"mujoco: not tried above {MUJOCO_MAX} bodies (does not compile at 1600)"
     import mujoco
@@ -103,12 +108,7 @@ def time_mujoco_step(model, steps, repeats):
         for _ in range(steps):
             mujoco.mj_step(m, d)
 
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        run()
-        times.append((time.perf_counter() - t0) / steps)
-    return 1e3 * statistics.median(times), ""
+    return run, ""
 
 
 def tip(sim):
@@ -150,19 +150,26 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="fewer steps and repeats")
     parser.add_argument("--out", default=str(DOCS / "bench_adaptive.json"))
     args = parser.parse_args(argv)
-    steps, repeats = (5, 3) if args.quick else (20, 7)
+    steps, budget = (5, 0.3) if args.quick else (20, 1.0)
     rows = []
     for n in SIZES:
         scene = pendulum(n)
-        full = scene.simulator()
-        full.step(1)
-        t_full = ms_per_step(full, max(1, steps // (10 if n > 1000 else 1)), repeats)
-        t_mj, mj_note = time_mujoco_step(scene.model, steps, repeats)
+        sims = simulators(scene)                     # steps per timed call:
+        chunk = {key: steps for key in sims}         # the full DCA's of 10000 bodies take
+        chunk["full"] = max(1, steps // 10) if n > 1000 else steps    # 20 ms each
+        calls = {key: (lambda sim=sim, k=chunk[key]: sim.step(k)) for key, sim in sims.items()}
+        mj, mj_note = mujoco_steps(scene.model, steps)
+        if mj is not None:
+            calls["mujoco"], chunk["mujoco"] = mj, steps
+        ms = {key: 1e-3 * us / chunk[key] for key, us in medians_us(calls, budget).items()}
+        t_full = ms["full"]
         for active in [a for a in ACTIVE if a <= n]:
-            row = dict(bodies=n, active=active, full_dca_ms=t_full, mujoco_ms=t_mj, notes=mj_note)
+            row = dict(bodies=n, active=active, full_dca_ms=t_full, mujoco_ms=ms.get("mujoco"),
+                       notes=mj_note)
             for metric in METRICS:
-                row[f"{metric}_ms"], row["active_held"] = time_adaptive(scene, active, metric,
-                                                                        steps, repeats)
+                row[f"{metric}_ms"] = ms[(active, metric)]
+            held = sims[(active, DEFAULT_METRIC)].history[3:]
+            row["active_held"] = float(np.mean([s.active_joints for s in held]))
             row["adaptive_ms"] = row[f"{DEFAULT_METRIC}_ms"]
             row["speedup"] = t_full / row["adaptive_ms"]
             rows.append(row)
@@ -170,11 +177,10 @@ def main(argv=None):
         if n == 300:
             everything = dict(full_dca_ms=t_full)
             for metric in METRICS:
-                zero = scene.simulator(method="adaptive", threshold=0.0, metric=metric)
-                zero.step(3)
-                everything[f"{metric}_ms"] = ms_per_step(zero, steps, repeats)
+                everything[f"{metric}_ms"] = ms[("zero", metric)]
             everything["adaptive_ms"] = everything[f"{DEFAULT_METRIC}_ms"]
             print(json.dumps(everything), flush=True)
+        del sims, calls
     fits = {n: fixed_and_per_node(rows, n) for n in SIZES}
     changes = region_cost(100 if args.quick else 500)
     print(json.dumps(changes), flush=True)
