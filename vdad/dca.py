@@ -18,11 +18,13 @@ transform between its two sides and every quantity is translation-invariant
 
 Storage (:class:`~vdad.assembly.AssemblyTree`): node ``n`` with ``P`` ports owns
 the blocks ``Phi_ac``, ``a <= c``, at ``Phi[pair_base[n] + pair_offset(P, a, c)]``
-(6, 6; ``Phi_ca = Phi_ac^T`` is not stored) and the slots ``b[slot_base[n] + a]``
-(6,); a ground leaf has none (``Phi = 0``, ``b = 0``). ``pair_base`` is the
-data's layout (:func:`make_data`): every node's blocks kept (:func:`node_blocks`
-gives a node's whole ``Phi``), or only those live in the bottom-up pass, in
-stacks (``docs/design.md``, "Block storage").
+(6, 6; ``Phi_ca = Phi_ac^T`` is not stored) and the vectors ``b[pair_base[n] +
+a]`` (6,; a node has at least as many blocks as ports); a ground leaf has none
+(``Phi = 0``, ``b = 0``). ``pair_base`` is the data's layout (:func:`make_data`):
+every node's blocks kept (:func:`node_blocks` gives a node's whole ``Phi``), or
+only those live in the bottom-up pass, in stacks (``docs/design.md``, "Block
+storage"). Per port slot (``slot_base[n] + a``) the tree keeps its joint, side
+and origin.
 Signed column blocks: for a port ``a`` of ``C`` taken from child ``X`` (``A`` or
 ``B``), ``G_a = s_a Phi^X_{a j_X}`` with ``s_a = -1`` on ``alpha`` and ``+1`` on
 ``beta``. Then (T11)-(T12) read ``Phi^C_{ac} = Phi^X_{ac} [same child] - G_a Y
@@ -76,9 +78,10 @@ class DCAData:
     brackets), allocated once by :func:`make_data` and reused.
 
     kin: the :class:`~vdad.kinematics.Kinematics` of the state.
-    Phi [n_pairs or fewer, 6, 6], b [n_slots, 6]: block stores of the tree (blocks
-    ``a <= c``) in the layout ``layout`` (the tree's arrays with the ``pair_base``
-    of this store); G [n_inner_slots, 6, 6]: ``G_a`` of every internal node's ports.
+    Phi [n_pairs or fewer, 6, 6], b [as many, 6]: block stores of the tree (blocks
+    ``a <= c``, and ``b`` of the ports) in the layout ``layout`` (the tree's arrays
+    with the ``pair_base`` of this store); G [n_inner_slots, 6, 6]: ``G_a`` of every
+    internal node's ports.
     Y [nb, 6, 6], beta, gamma [nb, 6]: per internal node, the intermediates kept
     for the top-down pass, with WtWm [nv, 6]: ``W^T W_m`` of each joint, a row per
     dof (what (T13) needs of ``W_m``), and PF [nv, 6]: ``(P F)^T`` of (A2) for the
@@ -127,7 +130,7 @@ def make_data(tree, keep_blocks=False) -> DCAData:
     nb, nv, P = model.nb, model.nv, tree.max_ports
     layout, n_blocks = (tree.arrays, tree.n_pairs) if keep_blocks else tree.stack_arrays
     z = np.zeros
-    return DCAData(Kinematics.empty(plan(model)), z((n_blocks, 6, 6)), z((tree.n_slots, 6)),
+    return DCAData(Kinematics.empty(plan(model)), z((n_blocks, 6, 6)), z((n_blocks, 6)),
                    z((nb, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(nv), z(nv),
                    z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)),
                    z((5, nv)), z((tree.n_inner_slots, 6, 6)), layout, bool(keep_blocks))
@@ -140,7 +143,7 @@ def check_data(tree, data):
         raise InputError(f"data must be vdad.dca.DCAData from make_data(tree), got "
                          f"{type(data).__name__}")
     model = tree.model
-    if (data.layout[13] is not tree.arrays[13] or len(data.b) != tree.n_slots
+    if (data.layout[13] is not tree.arrays[13] or len(data.b) != len(data.Phi)
             or len(data.f_J) != model.nb or len(data.qdd) != model.nv
             or len(data.X) < tree.max_ports):
         raise InputError(f"data was allocated for another assembly tree than this one (of "
@@ -339,14 +342,14 @@ def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
             port_transform(R_rel[j], p_rel[j], c, X[h])
     f = tmp[1, 0]
     body_wrench(i, bodies, f_ext, v[i], R[i], f)
-    leaf_blocks(P, pair_base[i], s0, X, Q, m, Iinv[i], f, Phi, b, tmp[1, 1])
+    leaf_blocks(P, pair_base[i], X, Q, m, Iinv[i], f, Phi, b, tmp[1, 1])
 
 
 @inlined
-def leaf_blocks(P, base, s0, X, Q, m, Ii, f, Phi, b, a_c):
+def leaf_blocks(P, base, X, Q, m, Ii, f, Phi, b, a_c):
     """(T2)-(T3) of a rigid leaf of ``P`` ports from its port transforms ``X_h``
-    (``X``): ``Phi_hk = X_h Ibar^-1 X_k^T`` (``h <= k``, from ``base``) and ``b_h =
-    X_h Ibar^-1 f`` (slots from ``s0``), ``Ibar^-1 = diag(Ii, 1/m)``, ``f`` (6,) at
+    (``X``): ``Phi_hk = X_h Ibar^-1 X_k^T`` (``h <= k``) and ``b_h = X_h Ibar^-1
+    f``, from ``base``, ``Ibar^-1 = diag(Ii, 1/m)``, ``f`` (6,) at
     the centre of mass. ``Q`` (>= P, 6, 6), ``a_c`` (6,): scratch."""
     for h in range(P):
         inverse_inertia_transpose(X[h], Ii, m, Q[h])
@@ -357,7 +360,7 @@ def leaf_blocks(P, base, s0, X, Q, m, Ii, f, Phi, b, a_c):
         a_c[r] = Ii[r, 0] * f[0] + Ii[r, 1] * f[1] + Ii[r, 2] * f[2]
         a_c[3 + r] = f[3 + r] / m
     for h in range(P):
-        mv6(X[h], a_c, b[s0 + h])
+        mv6(X[h], a_c, b[base + h])
 
 
 @inlined
@@ -527,13 +530,13 @@ def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, g
     jA, jB = port_A[i], port_B[i]
     d, u = nv_joint[j], subspace[j]
     Wj, Yj, Wmj, bj, gj = W[u], Y[i], tmp[5], beta[i], gamma[i]
-    kB, sB = pair_base[B] + pair_offset(n_ports[B], jB, jB), slot_base[B] + jB
+    kB, sB = pair_base[B] + pair_offset(n_ports[B], jB, jB), pair_base[B] + jB
     for r in range(6):                                          # (T6), (T8)
         gj[r] = b[sB, r] - c_J[j, r]
         for s in range(6):
             Wmj[r, s] = Phi[kB, r, s]
     if A >= 0:
-        kA, sA = pair_base[A] + pair_offset(n_ports[A], jA, jA), slot_base[A] + jA
+        kA, sA = pair_base[A] + pair_offset(n_ports[A], jA, jA), pair_base[A] + jA
         for r in range(6):
             gj[r] -= b[sA, r]
             for s in range(6):
@@ -585,10 +588,10 @@ def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
             zero6(GY[a])
         else:
             mm6(G[s0 + a], Yj, GY[a])
-        ba = b[s0 + a]
+        ba = b[pair_base[C] + a]
         mv6(G[s0 + a], bj, ba)                                   # (T12)
         for r in range(6):
-            ba[r] = b[slot_base[X] + ia, r] + sa * ba[r]
+            ba[r] = b[pair_base[X] + ia, r] + sa * ba[r]
     for a in range(P):                                           # (T11), a <= c
         X, ia = slot_child[s0 + a], slot_index[s0 + a]
         for cc in range(a, P):
@@ -678,9 +681,9 @@ def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, 
     v0, d, Wj, gj, bj = v_start[j], nv_joint[j], kin[4][subspace[j]], gamma[i], beta[i]
     loaded = has_armature(armature, v0, d)
     for r in range(6):                                  # (T8) without c_J
-        gj[r] = b[slot_base[B] + port_B[i], r]
+        gj[r] = b[pair_base[B] + port_B[i], r]
         if A >= 0:
-            gj[r] -= b[slot_base[A] + port_A[i], r]
+            gj[r] -= b[pair_base[A] + port_A[i], r]
     for r in range(6):                                  # t = W_m W tau + gamma
         acc = gj[r]
         if not loaded:
@@ -708,20 +711,20 @@ def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma,
     n = post.shape[0]
     for k in range(n):
         node = post[k]
-        s0 = slot_base[node]
+        s0, k0 = slot_base[node], pair_base[node]
         if node < nb:
             for a in range(n_ports[node]):
                 for r in range(6):
-                    b[s0 + a, r] = 0.0
+                    b[k0 + a, r] = 0.0
             continue
         i = node - nb
         joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma,
                   tmp[7, 2])
         for a in range(n_ports[node]):                             # (T12)
             X, ia = slot_child[s0 + a], slot_index[s0 + a]
-            ba = b[s0 + a]
+            ba = b[k0 + a]
             for r in range(6):
-                ba[r] = b[slot_base[X] + ia, r]
+                ba[r] = b[pair_base[X] + ia, r]
             mv6_add(G[s0 + a], beta[i], slot_sign[s0 + a], ba)
     for k in range(n - 1, -1, -1):
         node = post[k]

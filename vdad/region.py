@@ -254,19 +254,19 @@ def group_leaf(F, tree, groups, gravity, kin, RF, pF, Rw, vF, impulse, hF, Phi, 
         f[0] += KR[1, 2] - KR[2, 1] - (c[1] * Fl[2] - c[2] * Fl[1])
         f[1] += KR[2, 0] - KR[0, 2] - (c[2] * Fl[0] - c[0] * Fl[2])
         f[2] += KR[0, 1] - KR[1, 0] - (c[0] * Fl[1] - c[1] * Fl[0])
-    leaf_blocks(P, pair_base[F], s0, X, Q, m, Iinv[F], f, Phi, b, tmp[1, 1])
+    leaf_blocks(P, pair_base[F], X, Q, m, Iinv[F], f, Phi, b, tmp[1, 1])
 
 
 @inlined
 def zero_blocks(F, tree, Phi, b):
     """``Phi = 0``, ``b = 0`` on the ports of ``F``: a grounded group is immobile."""
-    n_ports, pair_base, slot_base = tree[5], tree[6], tree[7]
+    n_ports, pair_base = tree[5], tree[6]
     P = n_ports[F]
     for k in range(pair_base[F], pair_base[F] + P * (P + 1) // 2):
         for r in range(6):
             for s in range(6):
                 Phi[k, r, s] = 0.0
-    for k in range(slot_base[F], slot_base[F] + P):
+    for k in range(pair_base[F], pair_base[F] + P):
         for r in range(6):
             b[k, r] = 0.0
 
