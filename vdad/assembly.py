@@ -14,9 +14,10 @@ child body, ``-1`` if it holds the parent. Each node's ports are ordered
 ``alpha`` (from ``A``) then ``beta`` (from ``B``), as in (T11).
 
 The tree precomputes the flat arrays the compiled passes read
-(:attr:`AssemblyTree.arrays`: per node its ports' blocks and slots in the stores
-``Phi`` (n_pairs, 6, 6) and ``b`` (n_slots, 6), per slot its port and where it
-comes from).
+(:attr:`AssemblyTree.arrays`: per node where its blocks ``Phi`` (n_pairs, 6, 6)
+and its ports' vectors ``b`` start, and its first port slot; per slot its port and
+where it comes from; :attr:`AssemblyTree.stack_arrays`: the same with the
+blocks of the nodes live in the bottom-up pass only).
 """
 
 from __future__ import annotations
