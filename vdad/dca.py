@@ -125,7 +125,8 @@ def make_data(tree, keep_blocks=False) -> DCAData:
     dynamics, which reads its front nodes' blocks across steps); else only those
     live in the bottom-up pass are stored, in stacks of a few dozen blocks per
     root (:attr:`~vdad.assembly.AssemblyTree.stack_arrays`): the top-down pass needs
-    none of them, and a large tree's step then moves a third of the bytes."""
+    none of them, and a 10000-body chain's step writes 1.55 kB per body instead of
+    2.7 (``docs/design.md``, "Block storage")."""
     model = tree.model
     nb, nv, P = model.nb, model.nv, tree.max_ports
     layout, n_blocks = (tree.arrays, tree.n_pairs) if keep_blocks else tree.stack_arrays
@@ -578,20 +579,16 @@ def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
     tree, merged with the torso's seven ports: 27 of a dog's 95 merge products)."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    C, Yj, bj = nb + i, Y[i], beta[i]
+    C, Yj = nb + i, Y[i]
     P, s0 = n_ports[C], slot_base[C]
     free = is_zero6(Yj)             # a joint of six dofs: (T11) only gathers blocks
     port_blocks(i, nb, tree, Phi, G)
     for a in range(P):
-        X, ia, sa = slot_child[s0 + a], slot_index[s0 + a], slot_sign[s0 + a]
         if free:
             zero6(GY[a])
         else:
             mm6(G[s0 + a], Yj, GY[a])
-        ba = b[pair_base[C] + a]
-        mv6(G[s0 + a], bj, ba)                                   # (T12)
-        for r in range(6):
-            ba[r] = b[pair_base[X] + ia, r] + sa * ba[r]
+    port_vectors(i, nb, tree, b, beta[i], G)                     # (T12)
     for a in range(P):                                           # (T11), a <= c
         X, ia = slot_child[s0 + a], slot_index[s0 + a]
         for cc in range(a, P):
@@ -609,6 +606,21 @@ def merge_ports(i, nb, tree, Phi, b, Y, beta, G, GY):
                 mmt6_add_symmetric(GY[a], G[s0 + cc], sign, Cac)
             else:
                 mmt6_add(GY[a], G[s0 + cc], sign, Cac)
+
+
+@inlined
+def port_vectors(i, nb, tree, b, beta_C, G):
+    """(T12) of internal node ``C = nb + i``: ``b^C_a = b^X_a + G_a beta_C`` for
+    every port ``a`` (``G_a`` of :func:`port_blocks`)."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    C = nb + i
+    s0, k0 = slot_base[C], pair_base[C]
+    for a in range(n_ports[C]):
+        ba = b[k0 + a]
+        for r in range(6):
+            ba[r] = b[pair_base[slot_child[s0 + a]] + slot_index[s0 + a], r]
+        mv6_add(G[s0 + a], beta_C, slot_sign[s0 + a], ba)
 
 
 @inlined
@@ -705,27 +717,22 @@ def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma,
     """``qdd = M^-1 tau`` (nv,) by the DCA at the configuration of its last
     evaluation, whose ``G_a``, ``Y``, ``W^T W_m``, ``(P F)^T`` it reuses: the
     vector parts alone ((R3) of ``docs/accuracy.md``), leaves without known
-    wrenches, (T8)-(T9) by :func:`joint_rhs`, (T12), then :func:`solve_node`."""
+    wrenches, (T8)-(T9) by :func:`joint_rhs`, (T12) by :func:`port_vectors`, then
+    :func:`solve_node`."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     n = post.shape[0]
     for k in range(n):
         node = post[k]
-        s0, k0 = slot_base[node], pair_base[node]
         if node < nb:
             for a in range(n_ports[node]):
                 for r in range(6):
-                    b[k0 + a, r] = 0.0
+                    b[pair_base[node] + a, r] = 0.0
             continue
         i = node - nb
         joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma,
                   tmp[7, 2])
-        for a in range(n_ports[node]):                             # (T12)
-            X, ia = slot_child[s0 + a], slot_index[s0 + a]
-            ba = b[k0 + a]
-            for r in range(6):
-                ba[r] = b[pair_base[X] + ia, r]
-            mv6_add(G[s0 + a], beta[i], slot_sign[s0 + a], ba)
+        port_vectors(i, nb, tree, b, beta[i], G)                   # (T12)
     for k in range(n - 1, -1, -1):
         node = post[k]
         if node >= nb:
