@@ -60,7 +60,7 @@ def dca_call(model, bodies, q, qd, tau):
     closure, and its accelerations."""
     tree = default_tree(model)
     data = _work(tree)
-    args = (plan(model).arrays, tree.arrays, bodies, q, qd, tau, np.zeros((0, 6)),
+    args = (plan(model).arrays, data.layout, bodies, q, qd, tau, np.zeros((0, 6)),
             data.kin.arrays, data.arrays)
 
     def call():
