@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._linalg import as_input, inlined, kernel, pass_kernel, quaternion_step
+from ._linalg import as_input, finite, inlined, kernel, pass_kernel, quaternion_step
 from .dca import dynamics_pass, passive_forces_pass, refine_pass, rhs_passes
 from .errors import InputError
 from .forces import body_forces
@@ -174,13 +174,86 @@ def accelerations(js, tree, bodies, F, e, t, q, qd, kin, work, states, f_ext, ta
 
 #: integration schemes of :func:`dca_steps`
 SEMI_IMPLICIT, RK4, SYMPLECTIC = 0, 1, 2
-#: the most fixed-point iterations of a symplectic step, and their tolerance
-#: (relative to the largest velocity; they also stop where a change is no smaller
-#: than the one before: the rounding of the DCA's solve, about cond(M) eps, if
-#: below SYMPLECTIC_ACCEPT; else the iteration does not contract, and the step is
-#: taken again in 2, 4, ... 2^SYMPLECTIC_HALVINGS substeps)
+#: the most iterations of a symplectic step's velocity solve, and their tolerance
+#: (relative to the largest velocity; they also stop where a change below
+#: SYMPLECTIC_ACCEPT is no smaller than the one before: the rounding of the DCA's
+#: solve, about cond(M) eps); a step whose solve ends above SYMPLECTIC_ACCEPT is
+#: taken again in 2, 4, ... 2^SYMPLECTIC_HALVINGS substeps
 SYMPLECTIC_ITERATIONS, SYMPLECTIC_TOLERANCE, SYMPLECTIC_ACCEPT = 50, 1e-14, 1e-8
 SYMPLECTIC_HALVINGS = 6
+#: a solve whose change grows to this many times its first one has left the
+#: step's fixed point (it diverges): the step is taken again in substeps
+SYMPLECTIC_GROWTH = 10.0
+#: the differences of iterates that the Anderson-accelerated solve remembers
+ANDERSON_MEMORY = 6
+
+
+@inlined
+def anderson_scratch(nv):
+    """Scratch of :func:`anderson_update` for ``nv`` dofs: ``(rows (3 m + 2, nv),
+    R (m, m + 1))``, ``m`` = :data:`ANDERSON_MEMORY`."""
+    m = ANDERSON_MEMORY
+    return np.zeros((3 * m + 2, nv)), np.zeros((m, m + 1))
+
+
+@inlined
+def anderson_update(k, x, gx, rows, R):
+    """Iteration ``k`` (from 0) of Anderson acceleration (type II; Walker and Ni
+    2011, ``docs/accuracy.md`` (S4)) of the fixed point ``x = G(x)``, given ``gx =
+    G(x)``: ``x <- gx - sum_c gamma_c dg_c``, ``gamma`` the least-squares fit of the
+    residual ``f = gx - x`` by the last ``m`` residual differences ``df_c`` (``dg_c``
+    those of ``G``), by modified Gram-Schmidt (a difference dependent on the others
+    to ``1e-10`` of its length is left out). ``rows`` (3 m + 2, nv): ``df`` (m
+    rows), ``dg`` (m), their orthonormalised ``df`` (m), the last ``f`` and ``G``;
+    ``R`` (m, m + 1): the triangular factor and ``Q^T f``."""
+    m, nv = R.shape[0], x.shape[0]
+    f_last, g_last = rows[3 * m], rows[3 * m + 1]
+    if k > 0:                                           # the newest differences
+        c = (k - 1) % m
+        for i in range(nv):
+            rows[c, i] = gx[i] - x[i] - f_last[i]
+            rows[m + c, i] = gx[i] - g_last[i]
+    for i in range(nv):
+        f_last[i] = gx[i] - x[i]
+        g_last[i] = gx[i]
+    n = min(k, m)
+    for c in range(n):                                  # Q R = df, Q^T f
+        Q = rows[2 * m + c]
+        length = 0.0
+        for i in range(nv):
+            Q[i] = rows[c, i]
+            length += Q[i] * Q[i]
+        for r in range(c):
+            acc = 0.0
+            if R[r, r] > 0.0:
+                for i in range(nv):
+                    acc += rows[2 * m + r, i] * Q[i]
+                for i in range(nv):
+                    Q[i] -= acc * rows[2 * m + r, i]
+            R[r, c] = acc
+        norm = 0.0
+        for i in range(nv):
+            norm += Q[i] * Q[i]
+        R[c, c] = np.sqrt(norm) if norm > 1e-20 * length and norm > 0.0 else 0.0
+        acc = 0.0
+        if R[c, c] > 0.0:
+            for i in range(nv):
+                Q[i] /= R[c, c]
+                acc += Q[i] * f_last[i]
+        R[c, m] = acc
+    for c in range(n - 1, -1, -1):                      # R gamma = Q^T f, into R[:, m]
+        if R[c, c] > 0.0:
+            acc = R[c, m]
+            for r in range(c + 1, n):
+                acc -= R[c, r] * R[r, m]
+            R[c, m] = acc / R[c, c]
+        else:
+            R[c, m] = 0.0
+    for i in range(nv):
+        acc = gx[i]
+        for c in range(n):
+            acc -= R[c, m] * rows[m + c, i]
+        x[i] = acc
 
 
 @inlined
@@ -194,19 +267,20 @@ def velocities_of(js, tree, inert, q, p, zero, no_wrench, kin, work):
 
 @inlined
 def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, kin, work,
-                    states, f_ext, no_wrench, tau, scratch, q_new, qd_new):
+                    states, f_ext, no_wrench, tau, scratch, rows, R, q_new, qd_new):
     """One step of symplectic Euler in momentum form ((S1)-(S3) of
     ``docs/accuracy.md``), for joints of hinge and slide stages: with ``qd = M(q)^-1
     p`` (:func:`velocities_of`, into ``qd``) and the forces at ``(q, qd)`` (the
     tables ``F`` at evaluation ``e``, gravity, springs, dampers: ``g``),
-    ``p' = p + dt (dT/dq(q, qd') + g)`` with ``qd' = M(q)^-1 p'`` by fixed-point
-    iteration from ``2 qd - previous`` (until a change is below
-    :data:`SYMPLECTIC_TOLERANCE` of the largest velocity or no smaller than the one
-    before), then ``q' = q ⊕ dt qd'``. Returns whether the iteration converged (its
-    last change below :data:`SYMPLECTIC_ACCEPT` of the largest velocity). Leaves ``p'`` in
-    ``p``, ``qd`` in ``previous``, ``q'``, ``qd'`` in ``q_new``, ``qd_new``.
+    ``p' = p + dt (dT/dq(q, qd') + g)`` with ``qd' = M(q)^-1 p'``, solved by
+    Anderson-accelerated fixed-point iteration (:func:`anderson_update`, (S4)) from
+    ``2 qd - previous``, until a change is below :data:`SYMPLECTIC_TOLERANCE` of
+    the largest velocity (or, below :data:`SYMPLECTIC_ACCEPT`, no smaller than the
+    one before), then ``q' = q ⊕ dt qd'``. Returns whether the solve converged (its
+    last change below :data:`SYMPLECTIC_ACCEPT` of the largest velocity). Leaves
+    ``p'`` in ``p``, ``qd`` in ``previous``, ``q'``, ``qd'`` in ``q_new``, ``qd_new``.
     ``no_wrench`` (0, 6): no external wrench; ``scratch`` (4, nv): ``0`` (zero),
-    ``g``, ``dT/dq``, ``p'``."""
+    ``g``, ``dT/dq``, ``p'``; ``rows``, ``R``: :func:`anderson_scratch`."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau_w, X, GY, tmp, PF, a, f, cg, G = work
     zero, g, dT, p_next = scratch[0], scratch[1], scratch[2], scratch[3]
     nv, nb = qd.shape[0], f.shape[0]
@@ -221,8 +295,8 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
         g[i] += tau[i] - dT[i]
         qd_new[i] = 2.0 * qd[i] - previous[i]
         previous[i] = qd[i]
-    last, change, size = np.inf, np.inf, 1e-300
-    for _ in range(SYMPLECTIC_ITERATIONS):
+    last, first, change, size = np.inf, np.inf, np.inf, 1e-300
+    for k in range(SYMPLECTIC_ITERATIONS):
         inverse_dynamics_pass(js, bodies, kin, no_wrench, qd_new, MASS, a, f, tmp[7], dT)
         kinetic_gradient_pass(js, kin[2], a, f, qd_new, dT)
         for i in range(nv):
@@ -235,11 +309,17 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
         for i in range(nv):
             change = max(change, abs(qdd[i] - qd_new[i]))
             size = max(size, abs(qdd[i]))
-            qd_new[i] = qdd[i]
-        if not (change > SYMPLECTIC_TOLERANCE * size and change < last):
+        if not (finite(qdd) and change < SYMPLECTIC_GROWTH * first):
+            return False
+        if change <= SYMPLECTIC_TOLERANCE * size or (change <= SYMPLECTIC_ACCEPT * size
+                                                     and change >= last):
             break
         last = change
+        if k == 0:
+            first = change
+        anderson_update(k, qd_new, qdd, rows, R)
     for i in range(nv):
+        qd_new[i] = qdd[i]
         p[i] = p_next[i]
     configuration_step(bodies[5], bodies[6], bodies[7], q, qd_new, dt, q_new)
     return change <= SYMPLECTIC_ACCEPT * size
@@ -247,19 +327,23 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
 
 @kernel
 def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, qd, kin, work,
-              q_new, qd_new):
+              halvings, q_new, qd_new):
     """Up to ``n`` steps of the DCA from step number ``step0`` (``t = step dt``),
     with the model's own forces (gravity, joint springs and dampers) and the
     built-in force elements of the tables ``F`` (:meth:`~vdad.forces.ForceTables.
     arrays`, evaluation ``e = step * evaluations + k`` of the chunk), by ``scheme``:
     semi-implicit Euler or RK4, as :func:`semi_implicit_euler` and :func:`rk4`, or
     symplectic Euler in momentum form (:func:`symplectic_step`; ``inert``:
-    :func:`~vdad.dca.inert_arrays`), updating ``q``, ``qd`` in place. Stops at a
-    step whose state is not finite (status 1) or that turns a rotational dof by
-    more than half a turn (status 2), or whose symplectic step does not converge
-    even in ``2^SYMPLECTIC_HALVINGS`` substeps (status 3, ``q``, ``qd`` left at that
-    step's start), leaving that step's state in ``q_new``, ``qd_new``. Returns
-    ``(steps done, status)``."""
+    :func:`~vdad.dca.inert_arrays`) in ``2^halvings[0]`` substeps a step, updating
+    ``q``, ``qd`` in place. A symplectic step whose solve does not converge is taken
+    again in twice as many substeps, and ``halvings[0]`` keeps the new number for
+    every later step ((S4) of ``docs/accuracy.md``: a step that changes back and
+    forth loses the bounded energy error). Stops at a step whose state is not
+    finite (status 1) or that turns a rotational dof by more than half a turn
+    (status 2), or whose symplectic step does not converge even in
+    ``2^SYMPLECTIC_HALVINGS`` substeps (status 3, ``q``, ``qd`` left at that step's
+    start), leaving that step's state in ``q_new``, ``qd_new``. Returns ``(steps
+    done, status)``."""
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
     nq, nv, nb = q.shape[0], qd.shape[0], bodies[0].shape[0]
     kq = np.empty((4, nq))
@@ -267,6 +351,7 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
     qs, vs = np.empty(nq), np.empty(nv)
     states, f_ext, tau = np.empty((2, nb, 3)), np.empty((nb, 6)), np.empty(nv)
     p, previous, scratch = np.empty(nv), qd.copy(), np.zeros((4, nv))
+    rows, R = anderson_scratch(nv)
     no_wrench, start = np.empty((0, 6)), np.empty((3, max(nq, nv)))
     if scheme == SYMPLECTIC:                                       # p = M(q) qd
         kinematics_pass(js, q, qd, True, *kin)
@@ -287,7 +372,7 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
                 start[1, i] = p[i]
                 start[2, i] = previous[i]
             converged = True
-            for level in range(SYMPLECTIC_HALVINGS + 1):
+            for level in range(halvings[0], SYMPLECTIC_HALVINGS + 1):
                 k = 1 << level
                 for i in range(nq):
                     qs[i] = start[0, i]
@@ -299,12 +384,13 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
                     converged = symplectic_step(step, t + sub * dt / k, dt / k, js, tree,
                                                 bodies, inert, F, qs, qd, p, previous, kin,
                                                 work, states, f_ext, no_wrench, tau, scratch,
-                                                q_new, qd_new)
+                                                rows, R, q_new, qd_new)
                     for i in range(nq):
                         qs[i] = q_new[i]
                     if not converged:
                         break
                 if converged:
+                    halvings[0] = level
                     break
             if not converged:                      # the step's start, qd = M(q)^-1 p
                 for i in range(nv):

@@ -230,7 +230,10 @@ class Simulator:
     path of them, ``docs/adaptive.md``).
 
     With ``"adaptive"``, ``history`` holds the :class:`~vdad.adaptive.StepStats`
-    of every step and ``adaptive`` the adaptive work state.
+    of every step and ``adaptive`` the adaptive work state. With ``"symplectic"``,
+    each step is taken in ``2 ** halvings[0]`` substeps: 1 until a step's velocity
+    solve fails to converge, then as many as that step needed, for the rest of the
+    run ((S4) of ``docs/accuracy.md``).
     """
 
     def __init__(self, model, q0=None, qd0=None, dt=1e-3, method="dca",
@@ -262,6 +265,7 @@ class Simulator:
         self.t = 0.0
         self.step_count = 0
         self._rotational = rotational_dofs(model)
+        self.halvings = np.zeros(1, np.int64)
         self.history = []
         self.adaptive = None
         self.camera = None if camera is None else check_path(camera)
@@ -451,7 +455,8 @@ class Simulator:
                 return self._python_steps(n)
             with compiling(dca_steps):
                 done, status = dca_steps(m, self.dt, self.step_count, scheme, *args, F, q, qd,
-                                         self.data.kin.arrays, self.data.arrays, q_new, qd_new)
+                                         self.data.kin.arrays, self.data.arrays,
+                                         self.halvings, q_new, qd_new)
             self.q, self.qd = q.copy(), qd.copy()
             self._advance(done)
             if status == 3:
