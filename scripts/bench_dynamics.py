@@ -248,14 +248,15 @@ def imported_rows(budget):
             model, report = vdad.load_mjcf(path, report=True)
         m = mujoco.MjModel.from_xml_path(path)
         m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-        d = mujoco.MjData(m)
         q, qd = np.array(report.q0), np.random.default_rng(0).normal(size=model.nv) * 0.1
-        d.qpos[:], d.qvel[:] = q, qd
+        d, d_step = mujoco.MjData(m), mujoco.MjData(m)   # forward at (q, qd), as vdad's
+        for data in (d, d_step):
+            data.qpos[:], data.qvel[:] = q, qd
         sim = vdad.Simulator(model, q, qd, dt=report.dt)
         sim.step(STEPS)
         t = medians_us({"fd": vdad_call(model, q, qd), "mj_forward": mujoco_forward_call(m, d),
                         "step": lambda sim=sim: sim.step(STEPS),
-                        "mj_step": mujoco_steps_call(m, d)}, budget)
+                        "mj_step": mujoco_steps_call(m, d_step)}, budget)
         row = dict(model=name, bodies=model.nb, dofs=model.nv, forward_us=t["fd"],
                    mj_forward_us=t["mj_forward"], step_us=t["step"] / STEPS,
                    mj_step_us=t["mj_step"] / STEPS,
