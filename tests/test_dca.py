@@ -95,6 +95,10 @@ def test_stacked_blocks_give_the_result_of_every_block_kept(model, order):
         live[n] = mine
     with pytest.raises(vdad.InputError, match="keep_blocks=True"):
         dca.node_blocks(tree, stacked, model.nb)
+    with pytest.raises(vdad.InputError, match="keep_blocks must be True or False, got str"):
+        dca.make_data(tree, keep_blocks="no")
+    with pytest.raises(vdad.InputError, match="tree must be a vdad.AssemblyTree, got Model"):
+        dca.make_data(model)
 
 
 @pytest.mark.parametrize("seed", range(4))

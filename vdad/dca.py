@@ -66,7 +66,8 @@ from ._linalg import (
     symmetric_part,
     zero6,
 )
-from .checks import check_count
+from .assembly import AssemblyTree
+from .checks import check_count, check_flag
 from .errors import InputError
 from .kinematics import Kinematics, joint_kinematics, kinematics_pass, plan, world_poses
 from .newton_euler import FULL, MASS, body_wrench, inverse_dynamics_pass
@@ -127,6 +128,9 @@ def make_data(tree, keep_blocks=False) -> DCAData:
     root (:attr:`~vdad.assembly.AssemblyTree.stack_arrays`): the top-down pass needs
     none of them, and a 10000-body chain's step writes 1.55 kB per body instead of
     2.7 (``docs/design.md``, "Block storage")."""
+    if not isinstance(tree, AssemblyTree):
+        raise InputError(f"tree must be a vdad.AssemblyTree, got {type(tree).__name__}")
+    keep_blocks = check_flag("keep_blocks", keep_blocks)
     model = tree.model
     nb, nv, P = model.nb, model.nv, tree.max_ports
     layout, n_blocks = (tree.arrays, tree.n_pairs) if keep_blocks else tree.stack_arrays
@@ -134,7 +138,7 @@ def make_data(tree, keep_blocks=False) -> DCAData:
     return DCAData(Kinematics.empty(plan(model)), z((n_blocks, 6, 6)), z((n_blocks, 6)),
                    z((nb, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)), z((nb, 6)), z(nv), z(nv),
                    z((P, 6, 6)), z((P, 6, 6)), z((8, 6, 6)), z((nv, 6)), z((nb, 6)), z((nb, 6)),
-                   z((5, nv)), z((tree.n_inner_slots, 6, 6)), layout, bool(keep_blocks))
+                   z((5, nv)), z((tree.n_inner_slots, 6, 6)), layout, keep_blocks)
 
 
 def check_data(tree, data):
