@@ -43,6 +43,11 @@ VARIANTS = {"look-ahead, hysteresis, drop lock (default)": {},
             "look-ahead, no hysteresis (kappa 1, dwell 0)": {"kappa": 1.0, "dwell": 0},
             "drop coast (the paper)": {"drop": "coast"}}
 MUJOCO_MAX = 1000                          # mj compiles chains up to ~1000 (anchors §1)
+#: the most calls of a run in one batch of the timing (of 20 steps each, at most
+#: 25 batches: 10 s of simulated time): a run of a few active joints of 10000
+#: bodies takes 3 µs a step, and timed in 50 ms batches it simulated 22 s, where
+#: one of them (its region held, no look-ahead) diverged at step 21989
+MAX_CALLS = 20
 
 
 def simulators(scene):
@@ -161,7 +166,8 @@ def main(argv=None):
         mj, mj_note = mujoco_steps(scene.model, steps)
         if mj is not None:
             calls["mujoco"], chunk["mujoco"] = mj, steps
-        ms = {key: 1e-3 * us / chunk[key] for key, us in medians_us(calls, budget).items()}
+        ms = {key: 1e-3 * us / chunk[key]
+              for key, us in medians_us(calls, budget, MAX_CALLS).items()}
         t_full = ms["full"]
         for active in [a for a in ACTIVE if a <= n]:
             row = dict(bodies=n, active=active, full_dca_ms=t_full, mujoco_ms=ms.get("mujoco"),

@@ -88,18 +88,19 @@ def median_us(fn, budget_s):
     return medians_us({"fn": fn}, budget_s)["fn"]
 
 
-def medians_us(fns, budget_s):
+def medians_us(fns, budget_s, max_calls=None):
     """Median µs per call of each function of the dict ``fns``, timed in turns: each
-    round times a batch of about 50 ms of every function, so that all of them see
-    the same machine (on a shared VM its speed drifts by tens of per cent within a
-    minute, and a ratio of medians taken a minute apart drifts with it)."""
+    round times a batch of about 50 ms of every function (at most ``max_calls``
+    calls), so that all of them see the same machine (on a shared VM its speed
+    drifts by tens of per cent within a minute, and a ratio of medians taken a
+    minute apart drifts with it)."""
     number, once = {}, {}
     for key, fn in fns.items():
         fn()
         t0 = time.perf_counter()
         fn()
         once[key] = max(time.perf_counter() - t0, 1e-7)
-        number[key] = max(1, int(0.05 / once[key]))
+        number[key] = max(1, min(int(0.05 / once[key]), max_calls or 10 ** 9))
     per_round = sum(once[k] * number[k] for k in fns)
     rounds = max(3, min(25, int(len(fns) * budget_s / per_round) or 3))
     times = {key: [] for key in fns}
