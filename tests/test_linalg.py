@@ -158,6 +158,30 @@ def test_plain_python_mode_gives_the_compiled_result():
     assert L.NOTICE not in done.stderr
 
 
+LONG_FIRST_RUN = """
+import sys, time
+from vdad import _linalg
+from vdad.scenes import pendulum
+pendulum(4).simulator().step(2)                  # the step loop compiled or loaded
+_linalg._called.clear()                          # its next call counts as a first one
+_linalg._noticed.clear()
+print("long run", file=sys.stderr, flush=True)
+sim = pendulum(2000).simulator()
+t0 = time.perf_counter()
+sim.step(2000)
+print(time.perf_counter() - t0)
+"""
+
+
+def test_a_long_first_run_of_loaded_kernels_says_nothing():
+    """The notice that kernels compile is for a compile: a first call of a loaded
+    kernel that runs for seconds (2000 steps of a 2000-link chain) prints
+    nothing."""
+    done = _run(LONG_FIRST_RUN)
+    assert float(done.stdout) > 1.2, "the run took under the notice's second"
+    assert L.NOTICE not in done.stderr.split("long run", 1)[1], done.stderr
+
+
 def test_read_only_install_compiles_once_then_loads_from_the_user_cache(tmp_path):
     """An installed copy of the package whose folder cannot take numba's cache (a
     file stands where __pycache__ would go; it is also made read-only) caches in

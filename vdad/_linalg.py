@@ -53,8 +53,8 @@ _noticed = threading.Event()
 
 
 @contextlib.contextmanager
-def _announce():
-    timer = threading.Timer(1.0, _notice)
+def _announce(dispatcher):
+    timer = threading.Timer(1.0, _notice, (dispatcher,))
     timer.start()
     try:
         yield
@@ -62,17 +62,22 @@ def _announce():
         timer.cancel()
 
 
-def _notice():
-    if not _noticed.is_set():
-        _noticed.set()
-        print(NOTICE, file=sys.stderr, flush=True)
+def _notice(dispatcher):
+    """:data:`NOTICE`, once, if ``dispatcher`` has no compiled version yet (a
+    second into a first call that already runs one, the work is long, not the
+    compile)."""
+    if getattr(dispatcher, "overloads", None) or _noticed.is_set():
+        return
+    _noticed.set()
+    print(NOTICE, file=sys.stderr, flush=True)
 
 
 def compiling(dispatcher):
     """A context for a call of the compiled ``dispatcher``: on its first call in a
     process (when numba still has to load or compile it), :data:`NOTICE` is printed
-    once on stderr if the call takes more than a second (compiling takes a minute,
-    loading from the cache a fraction of a second). It also starts numba's
+    once on stderr if a second into the call numba has not yet loaded or compiled
+    it (compiling takes minutes, loading from the cache a fraction of a second; a
+    long first run of a loaded kernel says nothing). It also starts numba's
     threading layer, which a kernel loaded from the cache needs if it calls a
     parallel one (:func:`vdad.dca.forest_passes`) and which numba starts only for
     the parallel kernel itself (numba issues #8578, #9938): without it, the step
@@ -81,7 +86,7 @@ def compiling(dispatcher):
         return _NOTHING
     _called.add(dispatcher)
     numba.get_num_threads()
-    return _announce()
+    return _announce(dispatcher)
 
 
 _called = set()
