@@ -437,29 +437,12 @@ def has_armature(armature, v0, d):
 
 
 @inlined
-def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, PF_rows, tmp):
-    """``beta_C`` (6,) of (T9), ``W tau - Y (W_m W tau + gamma)`` with the joint's
-    forces ``tau[v0:v0 + d]``; with rotor inertia ``Ia = armature[v0:v0 + d]`` on its
-    dofs, (A1)-(A2) of ``docs/joints.md``: ``P = W - Y W_m W``, ``F = (1 + Ia P^T
-    W_m W)^-1``, ``Y += P F Ia P^T`` and ``beta_C = P F tau - Y gamma``, with
-    ``(P F)^T`` left in ``PF_rows[v0:v0 + d]`` (for :func:`joint_rhs`). ``tmp``
-    (>= 5, 6, 6): scratch."""
-    Wtau, t = tmp[0, 0], tmp[0, 1]
-    loaded = has_armature(armature, v0, d)
-    for r in range(6):
-        acc = 0.0
-        for k in range(d):
-            acc += W[r, k] * tau[v0 + k]
-        Wtau[r] = acc
-    if not loaded:                                              # (T9)
-        mv6(Wm, Wtau, t)
-        for r in range(6):
-            t[r] += gamma[r]
-        mv6(Y, t, beta)
-        for r in range(6):
-            beta[r] = Wtau[r] - beta[r]
-        return
-    WmW, P, M = tmp[1], tmp[2], tmp[3]                          # (A1)-(A2)
+def armature_inputs(Wm, Y, W, d, v0, armature, PF_rows, tmp):
+    """(A1)-(A2) of ``docs/joints.md`` for a joint with rotor inertia ``Ia =
+    armature[v0:v0 + d]`` on its dofs: ``P = W - Y W_m W``, ``F = (1 + Ia P^T W_m
+    W)^-1``, ``Y += P F Ia P^T``, with ``(P F)^T`` left in ``PF_rows[v0:v0 + d]``
+    (for :func:`joint_beta`). ``tmp`` (>= 5, 6, 6): scratch."""
+    WmW, P, M = tmp[1], tmp[2], tmp[3]
     for r in range(6):
         for k in range(6):
             P[r, k] = 0.0
@@ -498,12 +481,28 @@ def joint_inputs(Wm, Y, W, d, v0, tau, armature, gamma, beta, PF_rows, tmp):
                 acc += PF[r, m] * armature[v0 + m] * P[s, m]
             Y[r, s] += acc
     symmetric_part(Y, Y)
-    mv6(Y, gamma, t)
+
+
+@inlined
+def joint_beta(Y, W, WtWm, PF, v0, d, loaded, tau, gamma, beta, t):
+    """``beta_C`` (6,) of (T9), ``W tau - Y (W_m W tau + gamma)`` with the joint's
+    forces ``tau[v0:v0 + d]`` and ``W_m W = (W^T W_m)^T`` from the rows ``WtWm[v0:v0
+    + d]``; for a joint with rotor inertia (``loaded``), (A2): ``P F tau - Y
+    gamma`` with ``(P F)^T`` from the rows ``PF[v0:v0 + d]`` and ``Y`` of
+    :func:`armature_inputs`. ``t`` (6,): scratch."""
+    for r in range(6):                                  # t = W_m W tau + gamma
+        acc = gamma[r]
+        if not loaded:
+            for k in range(d):
+                acc += WtWm[v0 + k, r] * tau[v0 + k]
+        t[r] = acc
     for r in range(6):
         acc = 0.0
-        for m in range(d):
-            acc += PF[r, m] * tau[v0 + m]
-        beta[r] = acc - t[r]
+        for s in range(6):
+            acc -= Y[r, s] * t[s]
+        for k in range(d):
+            acc += (PF[v0 + k, r] if loaded else W[r, k]) * tau[v0 + k]
+        beta[r] = acc
 
 
 @inlined
@@ -551,13 +550,17 @@ def joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, g
         articulated_inverse(Wmj, Tj, 5, Yj, WT, K, Z)           # to the compiler, unrolled
     else:
         articulated_inverse(Wmj, Tj, 6 - d, Yj, WT, K, Z)
-    joint_inputs(Wmj, Yj, Wj, d, v_start[j], tau, armature, gj, bj, PF, tmp)  # (T9), (A1)-(A2)
-    for k in range(d):                                          # for (T13): W^T W_m
+    v0 = v_start[j]
+    for k in range(d):                                  # for (T9), (T13): W^T W_m
         for s in range(6):
             acc = 0.0
             for r in range(6):
                 acc += Wj[r, k] * Wmj[r, s]
-            WtWm[v_start[j] + k, s] = acc
+            WtWm[v0 + k, s] = acc
+    loaded = has_armature(armature, v0, d)
+    if loaded:
+        armature_inputs(Wmj, Yj, Wj, d, v0, armature, PF, tmp)   # (A1)-(A2)
+    joint_beta(Yj, Wj, WtWm, PF, v0, d, loaded, tau, gj, bj, tmp[0, 0])   # (T9)
 
 
 @inlined
@@ -686,33 +689,19 @@ def solve_node(i, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp):
 @inlined
 def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, t):
     """(T8)-(T9) of internal node ``C = nb + i`` for joint forces ``tau`` alone (no
-    velocity, no known wrenches): ``gamma = b^B_jB - b^A_jA`` and ``beta_C = W tau -
-    Y (W_m W tau + gamma)``, or ``P F tau - Y' gamma`` (A2) for a joint with
-    armature, from what :func:`joint_node` kept at this configuration: ``W_m W =
-    (W^T W_m)^T``, ``(P F)^T`` and ``Y'``. ``t`` (6,): scratch."""
+    velocity, no known wrenches): ``gamma = b^B_jB - b^A_jA`` and ``beta_C`` by
+    :func:`joint_beta`, from what :func:`joint_node` kept at this configuration
+    (``W^T W_m``, ``(P F)^T``, ``Y``). ``t`` (6,): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     v_start, nv_joint, subspace = js[6], js[7], js[15]
     A, B, j = left[i], right[i], joint[i]
-    v0, d, Wj, gj, bj = v_start[j], nv_joint[j], kin[4][subspace[j]], gamma[i], beta[i]
-    loaded = has_armature(armature, v0, d)
+    v0, d, Wj, gj = v_start[j], nv_joint[j], kin[4][subspace[j]], gamma[i]
     for r in range(6):                                  # (T8) without c_J
         gj[r] = b[pair_base[B] + port_B[i], r]
         if A >= 0:
             gj[r] -= b[pair_base[A] + port_A[i], r]
-    for r in range(6):                                  # t = W_m W tau + gamma
-        acc = gj[r]
-        if not loaded:
-            for k in range(d):
-                acc += WtWm[v0 + k, r] * tau[v0 + k]
-        t[r] = acc
-    for r in range(6):                                  # (T9), (A2)
-        acc = 0.0
-        for s in range(6):
-            acc -= Y[i, r, s] * t[s]
-        for k in range(d):
-            acc += (PF[v0 + k, r] if loaded else Wj[r, k]) * tau[v0 + k]
-        bj[r] = acc
+    joint_beta(Y[i], Wj, WtWm, PF, v0, d, has_armature(armature, v0, d), tau, gj, beta[i], t)
 
 
 @pass_kernel
