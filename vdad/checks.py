@@ -160,3 +160,10 @@ def check_wrenches(model, f_ext, name="f_ext"):
     if len(bad):
         raise InputError(f"{name} is not finite on body {model.body_names[bad[0]]!r}")
     return a
+
+
+def names_text(names, most=3):
+    """``names`` for a one-line message: at most ``most`` quoted, then "and N more"."""
+    names = list(names)
+    shown = ", ".join(repr(n) for n in names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import check_finite, check_flag, check_vector, reject_unknown, show
+from ..checks import check_finite, check_flag, check_vector, names_text, reject_unknown, show
 from ..environment import Environment
 from ..errors import InputError, ModelError, UnsupportedFeatureError
 from ..joints import BALL, HINGE, TRANSLATION, Stage
@@ -95,13 +95,6 @@ LEFT_OUT = {
     "geoms": "heightfields, SDFs and other geoms without vdad geometry: neither drawn nor "
              "counted",
 }
-
-
-def names_text(names, most=3):
-    """``names`` for a one-line message: at most ``most`` quoted, then "and N more"."""
-    names = list(names)
-    shown = ", ".join(repr(n) for n in names[:most])
-    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
 @dataclass(frozen=True)
