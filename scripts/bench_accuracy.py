@@ -48,13 +48,6 @@ def mark(name):
     return (f"<!-- bench_accuracy:{name}:start -->", f"<!-- bench_accuracy:{name}:end -->")
 
 
-def plain_arrays(model):
-    """:func:`vdad.dca.body_arrays` with the model's own leaves and no refinement:
-    the DCA of (T2)-(T13) as it was."""
-    b = dca.body_arrays(model)
-    return (*b[:3], np.linalg.inv(model.inertia), *b[4:12], 0)
-
-
 def dca_call(model, bodies, q, qd, tau):
     """The compiled DCA pass of ``model`` with ``bodies`` at ``(q, qd, tau)``, as a
     closure, and its accelerations."""
@@ -80,7 +73,7 @@ def thin_rods():
         model = thin_rod(r)
         q, qd, tau = np.zeros(1), np.zeros(1), np.ones(1)
         exact = np.array([1.0 / (a @ np.asarray(model.inertia[0]) @ a)])
-        rows.append(dict(r=r, plain=relative(dca_call(model, plain_arrays(model), q, qd, tau)(),
+        rows.append(dict(r=r, plain=relative(dca_call(model, dca.plain_arrays(model), q, qd, tau)(),
                                              exact),
                          refined=relative(vdad.forward_dynamics(model, q, qd, tau), exact),
                          aba=relative(reference.aba(model, q, qd, tau), exact)))
@@ -121,7 +114,7 @@ def hard_models():
         q, qd, tau, _ = random_state(model, 1)
         q = vdad.integrators.normalize_configuration(model, q)
         refined, plain = (dca_call(model, dca.body_arrays(model), q, qd, tau),
-                          dca_call(model, plain_arrays(model), q, qd, tau))
+                          dca_call(model, dca.plain_arrays(model), q, qd, tau))
         expected = reference.aba(model, q, qd, tau)
         cond = float(np.linalg.cond(reference.crba(model, q)))
         err_plain, err_refined = relative(plain(), expected), relative(refined(), expected)

@@ -51,8 +51,8 @@ from .checks import (
     names_text,
     real_array,
 )
-from .dca import body_arrays, dca_pass, leaf_inertias, make_data
-from .dynamics import default_tree
+from .dca import body_arrays, dca_pass, leaf_inertias, make_data, plain_arrays
+from .dynamics import default_tree, forward_dynamics
 from .errors import InputError
 from .forces import Forces, ForceTables, body_forces
 from .hybrid import RigidGroups
@@ -182,27 +182,22 @@ PLAIN_TOLERANCE = 1e-8
 
 @lru_cache(maxsize=64)
 def plain_error(model):
-    """How far the DCA on the bodies' own inverse inertias, what adaptive
-    dynamics' passes assemble (:mod:`vdad.hybrid`), is from
+    """How far the DCA on the bodies' own inverse inertias (:func:`~vdad.dca.
+    plain_arrays`, what adaptive dynamics' passes assemble) is from
     :func:`~vdad.forward_dynamics`, which raises thin bodies' leaves and refines
     ((R1)-(R3) of ``docs/accuracy.md``): the largest difference of their
     accelerations relative to the largest acceleration, at ``q_neutral`` with no
     velocity and unit joint forces; 0 where ``forward_dynamics`` refines nothing."""
-    bodies = body_arrays(model)
-    if bodies[12] == 0:
+    if body_arrays(model)[12] == 0:
         return 0.0
-    plain = (*bodies[:3], np.linalg.inv(model.inertia), *bodies[4:12], 0)
-    tree = default_tree(model)
     q, zero, tau = np.array(model.q_neutral, float), np.zeros(model.nv), np.ones(model.nv)
-    out = []
-    for arrays in (bodies, plain):
-        data = make_data(tree)
-        with compiling(dca_pass):
-            dca_pass(plan(model).arrays, data.layout, arrays, q, zero, tau, np.zeros((0, 6)),
-                     data.kin.arrays, data.arrays)
-        out.append(data.qdd.copy())
-    scale = np.abs(out[0]).max()
-    return float(np.abs(out[1] - out[0]).max() / scale) if scale > 0 else 0.0
+    refined = forward_dynamics(model, q, zero, tau)
+    data = make_data(default_tree(model))
+    with compiling(dca_pass):
+        dca_pass(plan(model).arrays, data.layout, plain_arrays(model), q, zero, tau,
+                 np.zeros((0, 6)), data.kin.arrays, data.arrays)
+    scale = np.abs(refined).max()
+    return float(np.abs(data.qdd - refined).max() / scale) if scale > 0 else 0.0
 
 
 def warn_if_plain_is_inexact(model, stacklevel):
@@ -283,8 +278,8 @@ class AdaptiveDynamics:
                              "methods); plain adaptive dynamics has none")
         self.coverage, self.coverage_every = coverage, int(coverage_every)
         self.model = model
-        warn_if_plain_is_inexact(model, 3)
         self.tree = tree = default_tree(model) if tree is None else tree
+        warn_if_plain_is_inexact(model, 3)
         self.dt = float(dt)
         self.threshold = None if threshold is None else float(threshold)
         self.budget = None if budget is None else int(budget)

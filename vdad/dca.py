@@ -264,6 +264,15 @@ def body_arrays(model) -> tuple:
 
 
 @lru_cache(maxsize=64)
+def plain_arrays(model) -> tuple:
+    """:func:`body_arrays` with the bodies' own inverse inertias and no refinement:
+    the DCA of (T2)-(T13) without (R1)-(R3) of ``docs/accuracy.md``, which is what
+    adaptive dynamics assembles (:mod:`vdad.hybrid`)."""
+    b = body_arrays(model)
+    return (*b[:3], np.linalg.inv(model.inertia), *b[4:12], 0)
+
+
+@lru_cache(maxsize=64)
 def inert_arrays(model) -> tuple:
     """:func:`body_arrays` without gravity, springs and dampers: the DCA on these at
     zero velocity solves ``M qdd = tau`` (``M^-1 p`` of the symplectic integrator,
