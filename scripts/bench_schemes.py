@@ -1,10 +1,11 @@
-"""Dropped accelerations and energy: the ``drop`` schemes of adaptive dynamics on the
-paper's scenes (issue 15).
+"""Dropped accelerations and energy: the ``drop`` schemes and the energy cap of adaptive
+dynamics on the paper's scenes (issue 15).
 
 Every configuration of ``vdad reproduce`` that runs adaptive dynamics
 (``adaptive``, ``view-bvh``, ``view-oq``), each scene's calibrated defaults (what
 ``vdad run`` uses) and the 10000-body budget run, once per scheme (``coast``: the
-paper's, ``lock``: the consistent one, ``docs/adaptive.md``). Each run steps beside
+paper's, ``lock``: the consistent one, each without the energy cap (``energy="free"``)
+and with it (``+cap``, the default), ``docs/adaptive.md``). Each run steps beside
 the full DCA from the same state and records, every ``every`` steps, the total
 energy of both (on the conservative scenes: pendulums without damping), the
 screen-space error of ``vdad.visual_error`` (surface points, no rendering),
@@ -26,7 +27,6 @@ from pathlib import Path
 import numpy as np
 from bench_dynamics import DOCS, write_section
 
-from vdad.adaptive import DROPS
 from vdad.errors import SimulationError
 from vdad.quantities import total_energy
 from vdad.reproduce import plan
@@ -41,6 +41,8 @@ EXTRA = [("pendulum", {"n_bodies": 20}, 1000, 10), ("pendulum", {"n_bodies": 300
          ("dog_puppet", {}, 1000, 10), ("hanging_dogs", {}, 300, 10),
          ("falling_character", {}, 2500, 25)]
 BUDGET_RUN = ("pendulum", {"n_bodies": 10000}, "adaptive", {"budget": 50}, 100, 10)
+#: (drop, energy) of each scheme compared
+SCHEMES = (("coast", "free"), ("lock", "free"), ("coast", "cap"), ("lock", "cap"))
 
 
 def configs(quick):
@@ -57,9 +59,10 @@ def configs(quick):
     runs.append(BUDGET_RUN)
     out = []
     for scene, args, method, options, steps, every in runs:
-        for drop in DROPS:
+        for drop, energy in SCHEMES:
             out.append(dict(scene=scene, scene_args=args, method=method,
-                            options={**options, "drop": drop}, steps=steps, every=every))
+                            options={**options, "drop": drop, "energy": energy}, steps=steps,
+                            every=every))
     return out
 
 
@@ -110,12 +113,14 @@ def run_scheme(config):
                 mean_px=float(np.nanmean(errors)) if errors else None,
                 energy_gain=float(gain) if mgL else None,
                 dca_energy_gain=float(ref_gain) if mgL else None,
+                energy_removed=sim.adaptive.energy_removed,
                 mgL=mgL, bound=float(max(ref_gain, 0.0) + 1e-3 * mgL) if mgL else None)
 
 
 def label(c):
     args = ", ".join(f"{k}={v}" for k, v in c["scene_args"].items())
-    options = ", ".join(f"{k}={v}" for k, v in c["options"].items() if k != "drop")
+    options = ", ".join(f"{k}={v}" for k, v in c["options"].items()
+                        if k not in ("drop", "energy"))
     return f"{c['scene']}({args})", c["method"], options
 
 
@@ -133,28 +138,35 @@ def main(argv=None):
     write_table(rows)
 
 
+def scheme(c):
+    """``coast``, ``lock``, ``coast+cap`` or ``lock+cap``."""
+    return c["options"]["drop"] + ("+cap" if c["options"]["energy"] == "cap" else "")
+
+
 def write_table(rows):
     """Per scheme and method family: runs, divergences, energy gains against the
     bound, error and speed (medians over the configurations)."""
     lines = ["", "| scheme | scene | method | runs | diverged | energy over bound | worst gain / "
-             "bound | median max error (px) | median active | median speed-up |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "bound | most removed by the cap (J) | median max error (px) | median active | "
+             "median speed-up |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     groups = {}
     for r in rows:
         c = r["config"]
-        groups.setdefault((c["options"]["drop"], label(c)[0].split("(")[0], c["method"]),
+        groups.setdefault((scheme(c), label(c)[0].split("(")[0], c["method"]),
                           []).append(r)
-    for (drop, scene, method), rs in sorted(groups.items()):
+    for (name, scene, method), rs in sorted(groups.items()):
         energy = [r for r in rs if r["energy_gain"] is not None and not r["diverged"]]
         over = sum(r["energy_gain"] > r["bound"] for r in energy)
         worst = max((r["energy_gain"] / r["bound"] for r in energy), default=None)
+        removed = max(r.get("energy_removed", 0.0) for r in rs)
         px = [r["max_px"] for r in rs if r["max_px"] is not None]
         act = [r["active_mean"] for r in rs if r["active_mean"] is not None]
         speed = [r["dca_ms_per_step"] / r["ms_per_step"] for r in rs if r["ms_per_step"]]
-        lines.append(f"| {drop} | {scene} | {method} | {len(rs)} | "
+        lines.append(f"| {name} | {scene} | {method} | {len(rs)} | "
                      f"{sum(r['diverged'] for r in rs)} | "
                      f"{over} of {len(energy)} | "
-                     f"{'—' if worst is None else f'{worst:.2g}'} | "
+                     f"{'—' if worst is None else f'{worst:.2g}'} | {removed:.3g} | "
                      f"{np.median(px) if px else float('nan'):.3g} | "
                      f"{np.median(act) if act else float('nan'):.1f} | "
                      f"{np.median(speed) if speed else float('nan'):.2f}x |")

@@ -71,6 +71,7 @@ from .region import (
     STEP_COUNTERS,
     RegionData,
     active_state_ok,
+    cap_energy,
     change_region,
     euler_active,
     evaluate,
@@ -85,6 +86,7 @@ from .region import (
 POLICIES = ("momentum", "zero")
 DROPS = ("coast", "lock")
 METRICS = ("direct", "coefficients")
+ENERGIES = ("cap", "free")
 PHASES = ("visibility", "forces", "dynamics", "integrate", "region", "steps")
 
 
@@ -244,6 +246,13 @@ class AdaptiveDynamics:
     sums (T14) bottom-up: the same values and decisions, and cheaper on the
     compiled core, where the coefficients cost more in the bottom-up pass than
     the back-substitution they save (``docs/adaptive.md``).
+    energy: ``"cap"`` (default) or ``"free"``. With ``"cap"``, where the step's
+    forces are gravity and joint damping only (no joint springs, force elements,
+    ``controller`` or ``external``), the total energy never rises above that of
+    the state the steps started from (or were last handed in changed): a step
+    that ends above it scales the active joints' velocities down to it (the
+    semi-implicit integrator's drift on the hybrid, ``docs/adaptive.md``, "The
+    energy cap"); elsewhere, and with ``"free"``, nothing is changed.
     coverage: None (``N_M = 1``: view-independent) or an estimator
     ``(t, q, adaptive) -> N_M`` per node (:mod:`vdad.visibility`), evaluated
     every ``coverage_every`` steps and, unless its ``covers_every_node`` is
@@ -252,7 +261,7 @@ class AdaptiveDynamics:
 
     def __init__(self, model, dt, tree=None, threshold=None, budget=None, weights=None,
                  velocity_weights=None, kappa=4.0, dwell=10, policy="momentum", lookahead=True,
-                 drop="lock", metric="direct", coverage=None, coverage_every=1):
+                 drop="lock", metric="direct", energy="cap", coverage=None, coverage_every=1):
         if (threshold is None) == (budget is None):
             raise InputError("adaptive dynamics needs exactly one of threshold= or budget=")
         if threshold is not None:
@@ -271,6 +280,9 @@ class AdaptiveDynamics:
         if metric not in METRICS:
             raise InputError(f"unknown metric evaluation {metric!r}; choose one of {METRICS}")
         self.predictive = metric == "coefficients"
+        if energy not in ENERGIES:
+            raise InputError(f"unknown energy option {energy!r}; choose one of {ENERGIES}")
+        self.energy = energy
         check_callable("coverage", coverage, "(t, q, adaptive) -> N_M")
         coverage_every = check_count("coverage_every", coverage_every)
         if coverage is None and coverage_every != 1:
@@ -320,6 +332,10 @@ class AdaptiveDynamics:
         self._zero_tau = np.zeros(model.nv)
         self._kq, self._kv = np.zeros((4, model.nq)), np.zeros((4, model.nv))
         self._stale_coverage = True
+        # the energy cap: (cap, removed, T, U), whether it can apply, the state left
+        self._energy = np.array([np.inf, 0.0, 0.0, 0.0])
+        self._cappable = energy == "cap" and not np.any(plan(model).stage_stiffness)
+        self._left = (np.full(model.nq, np.nan), np.full(model.nv, np.nan))
         self.step_count = 0
         self.stats = StepStats()
         self._rebuild()
@@ -521,9 +537,63 @@ class AdaptiveDynamics:
         """Advance ``(q, qd)`` (full vectors, updated in place) by one step of
         ``integrate`` (:func:`vdad.integrators.semi_implicit_euler` or
         :func:`vdad.integrators.rk4`, on the active joints): :meth:`advance`, then
-        :meth:`update`. Returns the step's :class:`StepStats`."""
+        :meth:`update`, then the energy cap (``energy="cap"``). Returns the step's
+        :class:`StepStats`."""
+        forced = controller is not None or external is not None or tables is not None
+        self._cap_from(q, qd, forced)
         self.advance(t, q, qd, integrate, controller, external, tables)
-        return self.update(q, qd)
+        st = self.update(q, qd)
+        self._cap(q, qd)
+        return st
+
+    @property
+    def energy_cap(self):
+        """The energy (J) that steps may not exceed (``energy="cap"``), or None
+        where the cap does not apply (the last steps had forces that do work)."""
+        cap = self._energy[0]
+        return float(cap) if np.isfinite(cap) else None
+
+    @property
+    def energy_removed(self):
+        """Energy (J) the cap has taken out over all steps so far."""
+        return float(self._energy[1])
+
+    def energy_of(self, q, qd):
+        """Kinetic plus gravitational energy of the hybrid at ``(q, qd)``, with the
+        rotors', in O(active joints + front) (``vdad.region.hybrid_energy``): the
+        total energy of a state whose rigid joints have ``qd = 0``, less the joint
+        springs' potential. The energy cap's measure."""
+        out = np.array([np.nan, 0.0, 0.0, 0.0])
+        with compiling(cap_energy):
+            cap_energy(out, self.model.nb, plan(self.model).arrays, body_arrays(self.model),
+                       self.groups.arrays, self._top, self.region.arrays, q, qd,
+                       self.kin.arrays)
+        return float(out[0])
+
+    def _cap_from(self, q, qd, forced):
+        """The cap for steps from ``(q, qd)``: none under forces that do work or
+        with ``energy="free"``; the energy of ``(q, qd)`` unless it is the state
+        the last capped steps left."""
+        left_q, left_qd = self._left
+        if forced or not self._cappable:
+            self._energy[0] = np.inf
+            left_q[:] = np.nan
+            return
+        if np.isfinite(self._energy[0]) and np.array_equal(q, left_q) \
+                and np.array_equal(qd, left_qd):
+            return
+        self._energy[0] = np.nan
+        self._cap(q, qd)
+
+    def _cap(self, q, qd):
+        """:func:`vdad.region.cap_energy` on ``(q, qd)`` (in place); keeps the state."""
+        if self._energy[0] == np.inf:
+            return
+        with compiling(cap_energy):
+            cap_energy(self._energy, self.model.nb, plan(self.model).arrays,
+                       body_arrays(self.model), self.groups.arrays, self._top,
+                       self.region.arrays, q, qd, self.kin.arrays)
+        self._left[0][:], self._left[1][:] = q, qd
 
     def advance(self, t, q, qd, integrate, controller=None, external=None, tables=None):
         """The dynamics and integration of a step, in place, on the current region
@@ -618,13 +688,16 @@ class AdaptiveDynamics:
                 vis = time.perf_counter() - t0
             m = min(m, self.coverage_every - self.step_count % self.coverage_every)
         t0 = time.perf_counter()
+        self._cap_from(q, qd, tables is not None or self.groups.any_force)
         with compiling(region_steps):
             done, status = region_steps(
                 m, self.step_count, time0, e0, self._refresh_on_change, options,
                 self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots, sums,
                 tables is not None, F, (self._force_work[0].arrays, *self._force_work[1:]),
-                rotational, q, qd, self.kin.arrays, self.data.arrays, r.arrays, self._stack,
-                last, counters)
+                self._energy, rotational, q, qd, self.kin.arrays, self.data.arrays, r.arrays,
+                self._stack, last, counters)
+        if np.isfinite(self._energy[0]):
+            self._left[0][:], self._left[1][:] = q, qd
         rows = done + (status == 2)
         each = (time.perf_counter() - t0) / max(rows, 1)
         times = dict.fromkeys(PHASES, 0.0)

@@ -85,9 +85,9 @@ def _scene_options(parser):
 
 # the method options that make_simulator gives Scene.simulator when set: each is the
 # keyword of the CLI option of the same name (--coverage-every: coverage_every)
-SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "drop", "dwell", "kappa", "volume",
-                     "estimate", "pixels", "counting", "coverage_every", "distance", "sleep_speed",
-                     "sleep_time")
+SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "drop", "energy", "dwell", "kappa",
+                     "volume", "estimate", "pixels", "counting", "coverage_every", "distance",
+                     "sleep_speed", "sleep_time")
 
 
 def _flag(name):
@@ -112,7 +112,7 @@ def _method_options(parser):
     """Dynamics method options (shared by ``run`` and ``render``). Those left out
     take the scene's calibrated defaults (``docs/scenes.md``), then the generic
     ones of :data:`vdad.simulator.DEFAULTS` and of AdaptiveDynamics."""
-    from .adaptive import DROPS, METRICS, POLICIES
+    from .adaptive import DROPS, ENERGIES, METRICS, POLICIES
     from .bounding import VOLUMES
     from .integrators import INTEGRATORS
     from .simulator import ADAPTIVE_DEFAULTS, DEFAULTS, FRAME_RATE, METHODS
@@ -156,6 +156,11 @@ def _method_options(parser):
     adaptive.add_argument("--drop", choices=DROPS,
                           help="joints not accelerated: coast with their velocity (the paper), "
                           f"or lock at once (consistent; default {default('drop')})")
+    adaptive.add_argument("--energy", choices=ENERGIES,
+                          help="cap: without forces that do work, the total energy never "
+                          "rises above the start's (velocities scaled down where a step ends "
+                          "above it, docs/adaptive.md); free: no cap (default "
+                          f"{default('energy')})")
     adaptive.add_argument("--dwell", type=_nonnegative_int,
                           help=f"steps a joint keeps a new state (default {default('dwell')})")
     adaptive.add_argument("--kappa", type=float,

@@ -26,9 +26,10 @@ pre-placement. Then one evaluation (:func:`evaluate`) is
 
 :func:`update_region` rigidifies and releases nodes after a step, freezing
 group data per node (:func:`vdad.hybrid.freeze_node`) and applying the
-momentum-conserving locking impulse with the same passes. :func:`region_steps`
-runs whole steps (forces, evaluations, integration, region changes, checks) in
-compiled code.
+momentum-conserving locking impulse with the same passes. :func:`cap_energy`
+keeps the energy of the hybrid (:func:`hybrid_energy`, O(active + front)) at or
+below a cap. :func:`region_steps` runs whole steps (forces, evaluations,
+integration, region changes, the cap, checks) in compiled code.
 """
 
 from __future__ import annotations
@@ -940,6 +941,76 @@ def group_momentum(G, R, pw, v, mass, com, inertia, tmp, out):
         out[3 + r] += tmp[3 + r]
 
 
+@inlined
+def hybrid_energy(nb, js, bodies, groups, top, region, q, qd, kin, out):
+    """Kinetic and gravitational energy of the hybrid at ``(q, qd)`` into ``out``
+    (2,), O(active joints + front) (``docs/adaptive.md``, "The energy cap"): each
+    front group's ``1/2 m |v_c|^2 + 1/2 w^T I_c w`` and ``-m g · c`` from its
+    top body's pose and velocity (:func:`active_kinematics`; a grounded group's
+    centre of mass is in world axes and it does not move), plus the active
+    joints' rotors ``1/2 armature qd^2`` (a rigid joint has ``qd = 0``)."""
+    (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
+     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+    mass, com, inertia, grounded = groups[0], groups[1], groups[2], groups[4]
+    gravity, armature = bodies[4], bodies[11]
+    v_start, nv_joint = js[6], js[7]
+    R, pw, v = kin[5], kin[6], kin[7]
+    active_kinematics(js, region, q, qd, True, kin)
+    T, U = 0.0, 0.0
+    for e in range(counts[N_VISIT]):
+        G = visit[e]
+        if G >= nb and active[G]:
+            continue
+        m, c = mass[G], com[G]
+        if grounded[G]:
+            U -= m * (gravity[0] * c[0] + gravity[1] * c[1] + gravity[2] * c[2])
+            continue
+        t = top[G]
+        w0, w1, w2 = v[t, 0], v[t, 1], v[t, 2]
+        vc0 = v[t, 3] + w1 * c[2] - w2 * c[1]
+        vc1 = v[t, 4] + w2 * c[0] - w0 * c[2]
+        vc2 = v[t, 5] + w0 * c[1] - w1 * c[0]
+        I = inertia[G]
+        T += 0.5 * (m * (vc0 * vc0 + vc1 * vc1 + vc2 * vc2)
+                    + w0 * (I[0, 0] * w0 + I[0, 1] * w1 + I[0, 2] * w2)
+                    + w1 * (I[1, 0] * w0 + I[1, 1] * w1 + I[1, 2] * w2)
+                    + w2 * (I[2, 0] * w0 + I[2, 1] * w1 + I[2, 2] * w2))
+        for r in range(3):
+            cw = pw[t, r] + R[t, r, 0] * c[0] + R[t, r, 1] * c[1] + R[t, r, 2] * c[2]
+            U -= m * gravity[r] * cw
+    for x in range(counts[N_JOINTS]):
+        j = joints[x]
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            T += 0.5 * armature[k] * qd[k] * qd[k]
+    out[0], out[1] = T, U
+
+
+@pass_kernel
+def cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin):
+    """The energy cap (``docs/adaptive.md``): with ``energy`` = (cap, removed, T,
+    U), the hybrid's energy (:func:`hybrid_energy`) into ``T``, ``U``; a cap of
+    NaN becomes ``T + U`` (the reference state), and where ``T + U`` exceeds the
+    cap, the active joints' velocities are scaled by ``sqrt((cap - U) / T)``
+    (zero if ``U`` alone exceeds it), which brings the kinetic energy to
+    ``cap - U``, and ``removed`` grows by the excess. An infinite cap: nothing."""
+    if energy[0] == np.inf:
+        return
+    hybrid_energy(nb, js, bodies, groups, top, region, q, qd, kin, energy[2:])
+    T, U = energy[2], energy[3]
+    if np.isnan(energy[0]):
+        energy[0] = T + U
+        return
+    if not T + U > energy[0]:
+        return
+    s = np.sqrt(max(energy[0] - U, 0.0) / T) if T > 0.0 else 0.0
+    energy[1] += (1.0 - s * s) * T
+    v_start, nv_joint, joints, counts = js[6], js[7], region[6], region[10]
+    for x in range(counts[N_JOINTS]):
+        j = joints[x]
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            qd[k] *= s
+
+
 # --- integration of the active joints ---------------------------------------------------------
 
 @pass_kernel
@@ -1038,19 +1109,21 @@ def forces_now(use, F, e, t, js, q, qd, fkin, states, f_ext, tau, held, active, 
 
 @pass_kernel
 def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies, groups,
-                 top, up, roots, sums, use_forces, F, force_work, rotational, q, qd, kin, work,
-                 region, stack, last, counters):
+                 top, up, roots, sums, use_forces, F, force_work, energy, rotational, q, qd, kin,
+                 work, region, stack, last, counters):
     """Up to ``n`` adaptive steps by semi-implicit Euler, the first numbered
     ``step0 + 1`` by adaptive dynamics and at ``t = time0 dt`` (the simulator's
     step count), each as ``AdaptiveDynamics.step`` takes it from Python:
     forces (the built-in elements of ``F`` at evaluation ``e0 + s`` for the step
-    ``s`` of the call, if ``use_forces``), the first evaluation, under ``drop="lock"`` the
-    immediate locking of what it pruned and a second evaluation, the integration
-    of the active joints, the region update; then the simulator's checks on the
-    active joints. ``options`` = (predictive, budget, lookahead, locking,
-    momentum, dwell, dt, keep, kappa, threshold); ``sums`` = the force sums held
+    ``s`` of the call, if ``use_forces``), the first evaluation, under
+    ``drop="lock"`` the immediate locking of what it pruned and a second
+    evaluation, the integration of the active joints, the region update, the
+    energy cap; then the simulator's checks on the active joints. ``options`` =
+    (predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa,
+    threshold); ``sums`` = the force sums held
     by the groups and ``carry_forces``' scratch; ``force_work`` = (kinematics,
-    states, f_ext, tau) of every body. Writes each step's :data:`STEP_COUNTERS`
+    states, f_ext, tau) of every body; ``energy``: the energy cap's (:func:`cap_energy`,
+    applied after each step). Writes each step's :data:`STEP_COUNTERS`
     into ``counters`` (n, 9) and keeps the state before the last step in
     ``last`` (q, qd). Stops after a step that changed the region if
     ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
@@ -1110,6 +1183,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                          region)
             row[7] += counts[RIGIDIFIED]
             row[8] += counts[RELEASED]
+        cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin)
         if not active_state_ok(dt, js, bodies, region, rotational, q, qd):
             return s, 2
         if stop_on_change and row[7] + row[8]:

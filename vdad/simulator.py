@@ -103,8 +103,9 @@ DEFAULTS = {"adaptive": {"threshold": 1e-6},
                          "pixels": "own", "coverage_every": frame_steps},
             "view-oq": {"threshold": 1e-6, "counting": "queries", "pixels": "own",
                         "coverage_every": frame_steps},
-            "lod-distance": {"distance": lod_distance},
-            "sleeping": {"sleep_speed": 0.05, "sleep_time": 0.5}}
+            # the baselines are what game engines do: no energy cap
+            "lod-distance": {"distance": lod_distance, "energy": "free"},
+            "sleeping": {"sleep_speed": 0.05, "sleep_time": 0.5, "energy": "free"}}
 
 
 def with_defaults(options, defaults):
