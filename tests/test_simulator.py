@@ -389,7 +389,9 @@ def test_compiled_adaptive_steps_equal_the_python_steps(name, method, options):
     """Adaptive steps by semi-implicit Euler run in compiled code
     (AdaptiveDynamics.run, vdad.region.region_steps) where the forces allow: the
     same states, to the last bit, and the same counters at every step as one
-    Python-level step at a time, with coverage evaluated as often."""
+    Python-level step at a time, with coverage evaluated as often (bounding
+    volumes: in the compiled loop, ``BoundingVolumes.loop_coverage``, against the
+    estimator's call from Python)."""
     import dataclasses
 
     runs = []
@@ -397,10 +399,16 @@ def test_compiled_adaptive_steps_equal_the_python_steps(name, method, options):
         sim = SCENES[name]().simulator(method=method, **options)
         sim.adaptive_loop = loop
         calls = []
-        if sim.adaptive.coverage is not None:
-            coverage = sim.adaptive.coverage
-            sim.adaptive.coverage = (lambda t, q, ad, calls=calls, coverage=coverage:
-                                     calls.append(t) or coverage(t, q, ad))
+        coverage = sim.adaptive.coverage
+        if coverage is not None and loop:
+            in_loop = coverage.loop_coverage
+            coverage.loop_coverage = (lambda times, calls=calls, in_loop=in_loop:
+                                      calls.extend(times) or in_loop(times))
+        elif coverage is not None:
+            def counted(t, q, ad, calls=calls, coverage=coverage):
+                return calls.append(t) or coverage(t, q, ad)
+            counted.covers_every_node = coverage.covers_every_node
+            sim.adaptive.coverage = counted
         sim.step(300)
         sim.step(400)
         runs.append((sim, calls))

@@ -82,6 +82,7 @@ from .region import (
     rk4_active,
     update_region,
 )
+from .visibility import idle_loop_coverage
 
 POLICIES = ("momentum", "zero")
 DROPS = ("coast", "lock")
@@ -332,6 +333,7 @@ class AdaptiveDynamics:
         self._zero_tau = np.zeros(model.nv)
         self._kq, self._kv = np.zeros((4, model.nq)), np.zeros((4, model.nv))
         self._stale_coverage = True
+        self._idle_coverage = idle_loop_coverage(tree)
         # the energy cap: (cap, removed, T, U), whether it can apply, the state left
         self._energy = np.array([np.inf, 0.0, 0.0, 0.0])
         self._cappable = energy == "cap" and not np.any(plan(model).stage_stiffness)
@@ -680,13 +682,23 @@ class AdaptiveDynamics:
                    self.drop == "lock", self.policy == "momentum", self.dwell, self.dt,
                    self._keep, self.kappa, np.inf if self.threshold is None else self.threshold)
         r, vis, m = self.region, 0.0, min(n, len(counters))
+        coverage = self._idle_coverage
         if self.coverage is not None:
-            if self._stale_coverage or self.step_count % self.coverage_every == 0:
-                t0 = time.perf_counter()
-                r.N_M[:] = self._checked_coverage(time0 * self.dt, q)
+            due = [s for s in range(m) if (self.step_count + s) % self.coverage_every == 0
+                   or (s == 0 and self._stale_coverage)]
+            loop = getattr(self.coverage, "loop_coverage", None)
+            coverage = None if loop is None else loop([(time0 + s) * self.dt for s in due])
+            if coverage is not None:            # bounding volumes, in the compiled steps
+                coverage[1][0][:] = due
                 self._stale_coverage = False
-                vis = time.perf_counter() - t0
-            m = min(m, self.coverage_every - self.step_count % self.coverage_every)
+            else:
+                if due and due[0] == 0:
+                    t0 = time.perf_counter()
+                    r.N_M[:] = self._checked_coverage(time0 * self.dt, q)
+                    self._stale_coverage = False
+                    vis = time.perf_counter() - t0
+                m = min(m, self.coverage_every - self.step_count % self.coverage_every)
+                coverage = self._idle_coverage
         t0 = time.perf_counter()
         self._cap_from(q, qd, tables is not None or self.groups.any_force)
         with compiling(region_steps):
@@ -694,8 +706,8 @@ class AdaptiveDynamics:
                 m, self.step_count, time0, e0, self._refresh_on_change, options,
                 self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots, sums,
                 tables is not None, F, (self._force_work[0].arrays, *self._force_work[1:]),
-                self._energy, rotational, q, qd, self.kin.arrays, self.data.arrays, r.arrays,
-                self._stack, last, counters)
+                coverage, self._energy, rotational, q, qd, self.kin.arrays, self.data.arrays,
+                r.arrays, self._stack, last, counters)
         if np.isfinite(self._energy[0]):
             self._left[0][:], self._left[1][:] = q, qd
         rows = done + (status == 2)

@@ -65,6 +65,7 @@ from .hybrid import carry_forces, freeze_node
 from .integrators import normalize_stage, stage_nq, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
 from .newton_euler import known_wrench
+from .visibility import bvh_pass
 
 #: indices of :attr:`RegionData.counts`
 N_VISIT, N_JOINTS, ASSEMBLED, FRONT, SOLVED, ACCELERATED, LOOKAHEAD, RIGIDIFIED, RELEASED = \
@@ -1109,8 +1110,8 @@ def forces_now(use, F, e, t, js, q, qd, fkin, states, f_ext, tau, held, active, 
 
 @pass_kernel
 def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies, groups,
-                 top, up, roots, sums, use_forces, F, force_work, energy, rotational, q, qd, kin,
-                 work, region, stack, last, counters):
+                 top, up, roots, sums, use_forces, F, force_work, coverage, energy, rotational, q,
+                 qd, kin, work, region, stack, last, counters):
     """Up to ``n`` adaptive steps by semi-implicit Euler, the first numbered
     ``step0 + 1`` by adaptive dynamics and at ``t = time0 dt`` (the simulator's
     step count), each as ``AdaptiveDynamics.step`` takes it from Python:
@@ -1123,7 +1124,10 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     threshold); ``sums`` = the force sums held
     by the groups and ``carry_forces``' scratch; ``force_work`` = (kinematics,
     states, f_ext, tau) of every body; ``energy``: the energy cap's (:func:`cap_energy`,
-    applied after each step). Writes each step's :data:`STEP_COUNTERS`
+    applied after each step); ``coverage`` = (constants, frames) of
+    ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
+    :func:`vdad.visibility.bvh_pass` before the steps ``frames[0]`` (ascending) of
+    the call, each under its camera (none if empty). Writes each step's :data:`STEP_COUNTERS`
     into ``counters`` (n, 9) and keeps the state before the last step in
     ``last`` (q, qd). Stops after a step that changed the region if
     ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
@@ -1135,9 +1139,16 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     fkin, states, f_ext, tau = force_work
     q_last, qd_last = last
     active, counts, qdd = region[0], region[10], work[7]
+    (codes, ckin, volumes, world, N1, moved, scratch), (due, views, Rcs, pcs) = coverage
+    f = 0
     for s in range(n):
         step = step0 + s
         t = (time0 + s) * dt
+        if f < due.shape[0] and due[f] == s:    # N_M of the frame (Kim 2008 §5.3)
+            v = views[f]
+            bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, js, q, ckin, tree[0],
+                     tree[1], volumes, world, N1, region[17], moved, scratch)
+            f += 1
         for i in range(q.shape[0]):
             q_last[i] = q[i]
         for i in range(qd.shape[0]):

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._linalg import as_input, inlined, pass_kernel
+from ._linalg import as_input, compiling, inlined, pass_kernel
 from .bounding import (
     KIND_CODE,
     body_volumes,
@@ -44,7 +44,7 @@ from .bounding import (
 )
 from .camera import camera_at, check_path, check_resolution
 from .errors import InputError
-from .kinematics import Kinematics, plan, world_poses
+from .kinematics import Kinematics, kinematics_pass, plan, world_poses
 from .projection import box_scratch, view_of
 
 ESTIMATES = ("min", "node", "bodies")
@@ -143,6 +143,27 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
 
 
 @pass_kernel
+def bvh_pass(codes, view, Rc, pc, nb, js, q, kin, left, right, body, world, N1, N, moved,
+             scratch):
+    """Kim 2008 §5.3, eqs. 5-7, of the whole tree at configuration ``q`` (nq,) into
+    ``N`` (n_nodes + 1,): every body placed (:func:`~vdad.kinematics.kinematics_pass`,
+    poses only, into ``kin``; rigid joints keep their ``q``), :func:`coverage_pass`,
+    then, under the moved-pixels rule, :func:`moved_pass` (``moved`` its arrays).
+    ``codes`` (3,): volume kind, estimate, moved rule (0/1); ``scratch`` = (cc,
+    Rcam, box scratch). The one evaluation of :class:`BoundingVolumes` that covers
+    every node, called from Python and, once per frame, from the compiled adaptive
+    steps (``vdad.region.region_steps``)."""
+    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work = kin
+    kinematics_pass(js, q, q, False, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work)
+    cc, Rcam, box = scratch
+    coverage_pass(codes[0], codes[1], view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
+                  cc, Rcam, box)
+    if codes[2]:
+        parent, root, floating, _, _, joint, sums = moved
+        moved_pass(nb, parent, root, floating, left, right, joint, sums, N)
+
+
+@pass_kernel
 def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, grounded, top, R, p,
                          local, world, N, cc, Rcam, scratch):
     """``N_M`` by eq. 5 (the node's own volume) of the adaptive region's nodes
@@ -194,6 +215,44 @@ def refresh_local(kind, nb, left, right, first, stale, rel_R, rel_p, since, stam
             stamp[C] = since[C]
 
 
+def moved_arrays(tree):
+    """The arrays of :func:`moved_pass` for ``tree``: each body's parent and root
+    body, whether each root is a floating base, the tree's ``left``, ``right``,
+    ``joint``, and scratch sums (nb,)."""
+    model = tree.model
+    root = plan(model).root_of                           # root body of each body's tree
+    return (_ids(model.parent), _ids(root), (model.parent[root] < 0) & (model.nv_joint[root] == 6),
+            tree.arrays[0], tree.arrays[1], tree.arrays[2], np.empty(model.nb))
+
+
+def _empty_like(x):
+    return (tuple(_empty_like(a) for a in x) if isinstance(x, tuple)
+            else np.zeros((0,) + x.shape[1:], x.dtype))
+
+
+def idle_loop_coverage(tree):
+    """The coverage arguments of the compiled adaptive steps
+    (``vdad.region.region_steps``) when no bounding volumes are evaluated in the
+    loop: ``(constants, frames)`` of the types of
+    :meth:`BoundingVolumes.loop_coverage`, empty, so that numba compiles the loop
+    once."""
+    box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
+    constants = (np.zeros(3, np.int64), Kinematics.empty(plan(tree.model)).arrays, box, box,
+                 np.zeros(1), moved_arrays(tree), (np.empty(3), np.empty((3, 3)), box_scratch()))
+    return _empty_like(constants), _empty_like(_frames([]))
+
+
+def _frames(cameras):
+    """Intrinsics (k, 4) and world poses (k, 3, 3), (k, 3) of ``cameras``, with
+    the step (k,) of each, as the compiled adaptive steps take them."""
+    k = len(cameras)
+    views, Rc, pc = np.zeros((k, 4)), np.zeros((k, 3, 3)), np.zeros((k, 3))
+    for i, cam in enumerate(cameras):
+        views[i] = view_of(cam)
+        Rc[i], pc[i] = camera_pose(cam)
+    return np.zeros(k, np.int64), views, Rc, pc
+
+
 class _Coverage:
     """A camera path, the counting resolution (default: the camera's own) and the
     rule ``pixels`` that turns the bodies' pixels into the nodes' (:data:`PIXELS`)."""
@@ -211,11 +270,7 @@ class _Coverage:
         self.pixels = pixels
         self._last = (None, None)                        # a path's camera, at resolution
         self._kin = Kinematics.empty(plan(self.model))
-        model = self.model
-        root = plan(model).root_of                       # root body of each body's tree
-        self._moved = (_ids(model.parent), _ids(root),
-                       (model.parent[root] < 0) & (model.nv_joint[root] == 6),
-                       tree.arrays[0], tree.arrays[1], tree.arrays[2], np.empty(model.nb))
+        self._moved = moved_arrays(tree)
 
     def node_pixels(self, N):
         """Each node's ``N`` (n_nodes + 1,) from its bodies' pixels in ``N[:nb]``,
@@ -283,6 +338,8 @@ class BoundingVolumes(_Coverage):
                     self._first[m] = min(self._first[m], self._first[child - nb])
         self._N1 = np.zeros(n + 1)
         self._scratch = (np.empty(3), np.empty((3, 3)), box_scratch())
+        self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
+                                pixels == "moved"], np.int64)
 
     @property
     def covers_every_node(self):
@@ -297,12 +354,11 @@ class BoundingVolumes(_Coverage):
         if adaptive is None or self.covers_every_node:
             # eqs. 6-7 and world boxes place every body anyway: one pass over the
             # whole tree from every body's pose (rigid joints keep their q)
-            R, p = self.poses(q, None)
-            estimate = BODIES if self.pixels == "moved" else self._estimate
-            coverage_pass(self._kind, estimate, view, Rc, pc, nb, self._left, self._right,
-                          self.body, as_input(R), as_input(p), self.world, self._N1, N,
-                          *self._scratch)
-            return self.node_pixels(N) if self.pixels == "moved" else N
+            with compiling(bvh_pass):
+                bvh_pass(self._codes, view, Rc, pc, nb, plan(self.model).arrays, as_input(q),
+                         self._kin.arrays, self._left, self._right, self.body, self.world,
+                         self._N1, N, self._moved, self._scratch)
+            return N
         front, act = adaptive.front, adaptive.act
         self._refresh(front, adaptive)
         kin = adaptive.front_kinematics(q)
@@ -310,6 +366,18 @@ class BoundingVolumes(_Coverage):
                              _ids(front), _ids(act), adaptive.groups.grounded, adaptive.top,
                              kin.R, kin.p, self.local, self.world, N, *self._scratch)
         return N
+
+    def loop_coverage(self, times):
+        """The coverage arguments of the compiled adaptive steps
+        (``vdad.region.region_steps``), which evaluate :func:`bvh_pass` once per
+        frame at the given ``times`` (k,) (the steps of each are set by the
+        caller): ``(constants, frames)``, or None where this estimator does not
+        cover every node (its region evaluation needs Python)."""
+        if not self.covers_every_node:
+            return None
+        constants = (self._codes, self._kin.arrays, self.body, self.world, self._N1,
+                     self._moved, self._scratch)
+        return constants, _frames([self.camera(t) for t in times])
 
     def _refresh(self, front, adaptive):
         """Volumes in the group frame of the rigid ``front`` nodes whose cache is
