@@ -181,6 +181,8 @@ def _sweep_figure(rows, out, name, x_of, xlabel, title):
     for m in CURVES:
         mine = sorted((r for r in rows if curve(r["config"]) == m),
                       key=lambda r: x_of(r["config"]))
+        if not mine:                             # a family this figure does not run
+            continue
         for r in mine:
             table.append([m, x_of(r["config"]), r["active_joints"], r["node_visits"],
                           r["ms_per_step"], r["reference_ms_per_step"], r["speedup"], _err(r),
