@@ -172,7 +172,11 @@ def test_run_view_methods(method, extra, tmp_path):
                      "--threshold", "1e-3", "--camera-distance", distance, *extra,
                      "--json", str(out), "--no-progress"]) == 0
         data = json.loads(out.read_text())
-        assert data["method"] == method and data["ms_per_phase_mean"]["visibility"] > 0
+        phases = data["ms_per_phase_mean"]
+        assert data["method"] == method and phases["steps"] > 0
+        # rendered counts are timed from Python; bounding volumes run inside the
+        # compiled steps, whose time is theirs
+        assert (phases["visibility"] > 0) == (method == "view-oq"), phases
         assert data["params"]["camera_distance"] == float(distance)
         given = dict(zip(extra[::2], extra[1::2], strict=True))
         assert all(data["options"][k[2:]] == given[k] for k in ("--pixels", "--volume")

@@ -100,9 +100,10 @@ class StepStats:
     back_substituted: nodes evaluated by the two passes; force_update: node
     visits carrying force changes up rigid regions; lookahead: front joints
     evaluated; rigidified / released: nodes that changed state; times: seconds
-    per phase (:data:`PHASES`; ``visibility``: the coverage ``N_M``; ``steps``:
-    the rest of a step run in compiled code, :meth:`AdaptiveDynamics.run`, whose
-    phases are not timed apart).
+    per phase (:data:`PHASES`; ``visibility``: the coverage ``N_M`` evaluated from
+    Python; ``steps``: the rest of a step run in compiled code,
+    :meth:`AdaptiveDynamics.run`, whose phases are not timed apart, bounding-volume
+    coverage evaluated there included).
     """
 
     active_joints: int = 0
