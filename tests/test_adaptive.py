@@ -695,3 +695,27 @@ def test_adaptive_dynamics_of_thin_bodies_says_it_is_not_refined():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         pendulum().simulator(method="adaptive", budget=5)
+
+
+def test_forces_place_only_the_bodies_they_read():
+    """An adaptive step places only the active joints' bodies, and its built-in
+    forces only the bodies that springs, drag and contact act on, with their
+    ancestors, parents first (AdaptiveDynamics.force_joints): the 100 dogs' torsos,
+    a spring at a pendulum's tip the whole chain; pulses read no body state."""
+    from vdad.forces import Forces, ForceTables, RandomTorques, Springs
+    from vdad.scenes import hanging_dogs
+
+    scene = hanging_dogs(n_dogs=3, columns=3)
+    sim = scene.simulator(method="adaptive", threshold=1e-2)
+    order = sim.adaptive.force_joints(sim.force_tables().arrays(np.zeros(1)))[0]
+    names = scene.model.body_names
+    assert sorted(names[b] for b in order) == [f"dog{d:03d}/torso" for d in range(3)]
+    model = pendulum(6).model
+    tip = Springs(model, [model.body_names[-1]], np.zeros((1, 3)), np.ones((1, 3)), 10.0, 0.1)
+    pulses = RandomTorques(model, [model.body_names[2]], 1.0, 1.0, 0.1)
+    for element, placed in ((tip, list(range(6))), (pulses, [])):
+        F = ForceTables(Forces(model, [element])).arrays(np.zeros(1))
+        order = AdaptiveDynamics(model, 1e-3, threshold=1e-5).force_joints(F)[0].tolist()
+        assert sorted(order) == placed
+        assert all(model.parent[b] < 0 or model.parent[b] in order[:k]     # parents first
+                   for k, b in enumerate(order))

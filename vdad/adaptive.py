@@ -323,6 +323,7 @@ class AdaptiveDynamics:
         self._sources = (None, None, None)
         self._force_work = (Kinematics.empty(plan(model)), np.empty((2, nb, 3)),
                             np.empty((nb, 6)), np.empty(model.nv))
+        self._force_key, self._force_order = None, None
         g = self.groups          # run(): the groups' force sums, state before a step,
         self._run_work = ((g.f_ext, g.pending, g.mark, g.order, g.is_B),   # counters,
                           (np.empty(model.nq), np.empty(model.nv)),       # no forces
@@ -516,6 +517,27 @@ class AdaptiveDynamics:
         joint = self.model.joint_names[self.model.dof_joint[bad[0]]] if len(bad) else "?"
         return InputError(f"the accelerations became non-finite at joint {joint!r}")
 
+    def force_joints(self, F):
+        """The joint set (:attr:`~vdad.kinematics.JointSet.arrays`) whose kinematics
+        the built-in forces of the tables ``F`` read: the bodies that springs, drag
+        and contact act on, and their ancestors, parents first (pulses and joint
+        limits read no body state). The DCA's step places every body anyway; an
+        adaptive step places only the active joints' bodies, so its forces place
+        only these (on the 100 dogs, 100 torsos instead of 1600 bodies)."""
+        rows = np.concatenate([F[0], F[9], F[14]])
+        key = rows.tobytes()
+        if key != self._force_key:
+            js, need = plan(self.model), np.zeros(self.model.nb, bool)
+            need[rows] = True
+            for j in js.order[::-1]:                    # children before their parents
+                if need[j] and self.model.parent[j] >= 0:
+                    need[self.model.parent[j]] = True
+            self._force_key = key
+            self._force_order = np.ascontiguousarray(js.order[need[js.order]], np.int64)
+        # the model's own arrays beside it (a deep copy's would be writable, and
+        # numba would compile the kernels again for them)
+        return (self._force_order, *plan(self.model).arrays[1:])
+
     def _forces(self, t, q, qd, k):
         """``tau``, ``f_ext`` (None: zero) of the step's sources at evaluation ``k``
         of the step (RK4: 0-3): the compiled tables (:func:`vdad.forces.body_forces`)
@@ -525,8 +547,8 @@ class AdaptiveDynamics:
             F, e = tables
             kin, states, f_ext, tau = self._force_work
             with compiling(body_forces):
-                body_forces(plan(self.model).arrays, F, e + k, t, q, qd, kin.arrays, states,
-                            f_ext, tau)
+                body_forces(self.force_joints(F), F, e + k, t, q, qd, kin.arrays, states, f_ext,
+                            tau)
             return tau, f_ext
         tau = f_ext = None
         if controller is not None:
@@ -706,7 +728,8 @@ class AdaptiveDynamics:
             done, status = region_steps(
                 m, self.step_count, time0, e0, self._refresh_on_change, options,
                 self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots, sums,
-                tables is not None, F, (self._force_work[0].arrays, *self._force_work[1:]),
+                tables is not None, F,
+                (self.force_joints(F), self._force_work[0].arrays, *self._force_work[1:]),
                 coverage, self._energy, rotational, q, qd, self.kin.arrays, self.data.arrays,
                 r.arrays, self._stack, last, counters)
         if np.isfinite(self._energy[0]):

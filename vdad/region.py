@@ -1121,10 +1121,11 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     evaluation, the integration of the active joints, the region update, the
     energy cap; then the simulator's checks on the active joints. ``options`` =
     (predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa,
-    threshold); ``sums`` = the force sums held
-    by the groups and ``carry_forces``' scratch; ``force_work`` = (kinematics,
-    states, f_ext, tau) of every body; ``energy``: the energy cap's (:func:`cap_energy`,
-    applied after each step); ``coverage`` = (constants, frames) of
+    threshold); ``sums`` = the force sums held by the groups and ``carry_forces``'
+    scratch; ``force_work`` = (the joints whose kinematics the forces read,
+    ``AdaptiveDynamics.force_joints``; kinematics, states, f_ext, tau of every
+    body); ``energy``: the energy cap's (:func:`cap_energy`, applied after each
+    step); ``coverage`` = (constants, frames) of
     ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
     :func:`vdad.visibility.bvh_pass` before the steps ``frames[0]`` (ascending) of
     the call, each under its camera (none if empty). Writes each step's :data:`STEP_COUNTERS`
@@ -1136,7 +1137,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     predictive, budget, lookahead_on, locking, momentum, dwell, dt, keep, kappa, threshold = \
         options
     held, pending, mark, order, is_B = sums
-    fkin, states, f_ext, tau = force_work
+    fjs, fkin, states, f_ext, tau = force_work
     q_last, qd_last = last
     active, counts, qdd = region[0], region[10], work[7]
     (codes, ckin, volumes, world, N1, moved, scratch), (due, views, Rcs, pcs) = coverage
@@ -1157,7 +1158,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         for c in range(row.shape[0]):
             row[c] = 0
         row[0], row[1] = counts[N_JOINTS], counts[FRONT]
-        row[5] += forces_now(use_forces, F, e0 + s, t, js, q, qd, fkin, states, f_ext, tau,
+        row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                              held, active, up, is_B, groups, pending, mark, order)
         if not evaluate(True, predictive, budget, False, lookahead_on, locking, step + 1, dwell,
                         dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau,
@@ -1174,7 +1175,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                              work, region)
                 row[7] += counts[RIGIDIFIED]
             row[0], row[1] = counts[N_JOINTS], counts[FRONT]
-            row[5] += forces_now(use_forces, F, e0 + s, t, js, q, qd, fkin, states, f_ext, tau,
+            row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                                  held, active, up, is_B, groups, pending, mark, order)
             if not evaluate(False, predictive, budget, False, lookahead_on, locking, step + 1,
                             dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots,
