@@ -79,7 +79,8 @@ def _poses_in_loop(k, js, q, kin):
 def in_loop_calls(cov, q, k):
     """Calls of ``k`` in-loop evaluations of ``cov`` (all of them, and the poses only)."""
     model, tree = cov.model, cov.tree
-    (codes, kin, body, world, N1, moved, scratch), (_, views, Rc, pc) = cov.loop_coverage([0.0])
+    constants, (_, views, Rc, pc) = cov.loop_coverage([0], [0.0])
+    codes, kin, body, world, N1, moved, scratch = constants
     args = (codes, tuple(views[0]), Rc[0], pc[0], model.nb, plan(model).arrays, q, kin,
             tree.arrays[0], tree.arrays[1], body, world, N1, np.empty(tree.n_nodes + 1), moved,
             scratch)

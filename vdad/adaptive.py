@@ -54,7 +54,7 @@ from .checks import (
 from .dca import body_arrays, dca_pass, leaf_inertias, make_data, plain_arrays
 from .dynamics import default_tree, forward_dynamics
 from .errors import InputError
-from .forces import Forces, ForceTables, body_forces
+from .forces import Forces, ForceTables, body_forces, state_bodies
 from .hybrid import RigidGroups
 from .integrators import rk4
 from .kinematics import Kinematics, plan
@@ -524,7 +524,7 @@ class AdaptiveDynamics:
         limits read no body state). The DCA's step places every body anyway; an
         adaptive step places only the active joints' bodies, so its forces place
         only these (on the 100 dogs, 100 torsos instead of 1600 bodies)."""
-        rows = np.concatenate([F[0], F[9], F[14]])
+        rows = state_bodies(F)
         key = rows.tobytes()
         if key != self._force_key:
             js, need = plan(self.model), np.zeros(self.model.nb, bool)
@@ -710,10 +710,9 @@ class AdaptiveDynamics:
             due = [s for s in range(m) if (self.step_count + s) % self.coverage_every == 0
                    or (s == 0 and self._stale_coverage)]
             loop = getattr(self.coverage, "loop_coverage", None)
-            coverage = None if loop is None else loop([(time0 + s) * self.dt for s in due])
-            if coverage is not None:            # bounding volumes, in the compiled steps
-                coverage[1][0][:] = due
-                self._stale_coverage = False
+            in_loop = None if loop is None else loop(due, [(time0 + s) * self.dt for s in due])
+            if in_loop is not None:             # bounding volumes, in the compiled steps
+                coverage, self._stale_coverage = in_loop, False
             else:
                 if due and due[0] == 0:
                     t0 = time.perf_counter()
@@ -721,7 +720,6 @@ class AdaptiveDynamics:
                     self._stale_coverage = False
                     vis = time.perf_counter() - t0
                 m = min(m, self.coverage_every - self.step_count % self.coverage_every)
-                coverage = self._idle_coverage
         t0 = time.perf_counter()
         self._cap_from(q, qd, tables is not None or self.groups.any_force)
         with compiling(region_steps):

@@ -794,6 +794,14 @@ class ForceTables:
                 *pulses, *self.limits)
 
 
+def state_bodies(F):
+    """The bodies (k,) whose states the elements of the tables ``F``
+    (:meth:`ForceTables.arrays`) read: those springs, drag and contact act on
+    (pulses and joint limits read none), as :func:`apply_forces` unpacks them."""
+    s_rows, d_rows, c_rows = F[0], F[9], F[14]
+    return np.concatenate([s_rows, d_rows, c_rows])
+
+
 @pass_kernel
 def apply_forces(F, e, t, R, p, w, v, q, qd, f, tau):
     """Every built-in element of the tables ``F`` (:meth:`ForceTables.arrays`) at
@@ -835,4 +843,5 @@ ForceTables.BUILT_IN = (Springs, RandomTorques, Drag, FloorContact, JointLimits)
 
 
 __all__ = ["BodyStates", "Drag", "FloorContact", "ForceTables", "Forces", "JointLimits",
-           "RandomTorques", "Springs", "contact_points", "joint_inertia", "point_wrenches"]
+           "RandomTorques", "Springs", "contact_points", "joint_inertia", "point_wrenches",
+           "state_bodies"]

@@ -239,18 +239,18 @@ def idle_loop_coverage(tree):
     box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
     constants = (np.zeros(3, np.int64), Kinematics.empty(plan(tree.model)).arrays, box, box,
                  np.zeros(1), moved_arrays(tree), (np.empty(3), np.empty((3, 3)), box_scratch()))
-    return _empty_like(constants), _empty_like(_frames([]))
+    return _empty_like(constants), _frames([], [])
 
 
-def _frames(cameras):
-    """Intrinsics (k, 4) and world poses (k, 3, 3), (k, 3) of ``cameras``, with
-    the step (k,) of each, as the compiled adaptive steps take them."""
+def _frames(steps, cameras):
+    """The ``steps`` (k,) of the frames, and the intrinsics (k, 4) and world poses
+    (k, 3, 3), (k, 3) of their ``cameras``, as the compiled adaptive steps take them."""
     k = len(cameras)
     views, Rc, pc = np.zeros((k, 4)), np.zeros((k, 3, 3)), np.zeros((k, 3))
     for i, cam in enumerate(cameras):
         views[i] = view_of(cam)
         Rc[i], pc[i] = camera_pose(cam)
-    return np.zeros(k, np.int64), views, Rc, pc
+    return np.array(steps, np.int64).reshape(k), views, Rc, pc
 
 
 class _Coverage:
@@ -367,17 +367,18 @@ class BoundingVolumes(_Coverage):
                              kin.R, kin.p, self.local, self.world, N, *self._scratch)
         return N
 
-    def loop_coverage(self, times):
+    def loop_coverage(self, steps, times):
         """The coverage arguments of the compiled adaptive steps
-        (``vdad.region.region_steps``), which evaluate :func:`bvh_pass` once per
-        frame at the given ``times`` (k,) (the steps of each are set by the
-        caller): ``(constants, frames)``, or None where this estimator does not
-        cover every node (its region evaluation needs Python)."""
+        (``vdad.region.region_steps``), which evaluate :func:`bvh_pass` before each
+        of the ``steps`` (k,) of a call (ascending, counted from its first) with the
+        camera at the given ``times`` (k,): ``(constants, frames)``, or None where
+        this estimator does not cover every node (its region evaluation needs
+        Python)."""
         if not self.covers_every_node:
             return None
         constants = (self._codes, self._kin.arrays, self.body, self.world, self._N1,
                      self._moved, self._scratch)
-        return constants, _frames([self.camera(t) for t in times])
+        return constants, _frames(steps, [self.camera(t) for t in times])
 
     def _refresh(self, front, adaptive):
         """Volumes in the group frame of the rigid ``front`` nodes whose cache is
