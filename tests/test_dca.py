@@ -332,6 +332,28 @@ def test_models_without_thin_bodies_are_not_refined():
     np.testing.assert_allclose(moments, [1e-2, 0.1, 0.1], rtol=1e-12)  # raised to 0.1 of 0.1
 
 
+@pytest.mark.parametrize("kind", ["slides", "hinge"])
+@pytest.mark.parametrize("armature", [1e-6, 1e-3, 0.03])
+def test_a_light_body_under_a_heavy_armature_is_exact(kind, armature):
+    """(A3) of docs/joints.md: a 4e-10 kg body (gymnasium's pusher goal: radius of
+    gyration 4 cm) on two slides, or on a hinge, whose joint has armature. With
+    (T13) the DCA lost armature / inertia eps (9e-9 relative at 0.03 on the
+    slides, 4e-13 at 1e-6); with (A3), unrefined, it is within 100 cond(M) eps of
+    the reference ABA."""
+    mass = 4e-10
+    body = vdad.Body("goal", mass, (0.0, 0.02, 0.0), np.diag([1.6e-3 * mass] * 3))
+    stages = ((vdad.joints.Stage("slide", (1, 0, 0), armature=armature),
+               vdad.joints.Stage("slide", (0, 1, 0), armature=armature)) if kind == "slides"
+              else (vdad.joints.Stage("hinge", (0.3, 0.5, 0.8), armature=armature),))
+    model = vdad.Model([body], [vdad.Joint("j", None, "goal", "composite", stages=stages,
+                                           placement=vdad.Pose((0.45, -0.05, -0.3)))])
+    assert dca.body_arrays(model)[12] == 0                        # not refined
+    for seed in range(3):
+        q, qd, tau, f_ext = random_state(model, seed)
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
+
+
 def test_planar_models_raise_their_leaves_without_refinement():
     """Rods along z, thin about z (moments 1, 1, 1e-8), on hinges about y: every
     body turns about y, square to the raised direction, so the raised leaves

@@ -663,11 +663,15 @@ def copy_block(Phi, base, P, a, c, out):
 
 
 @inlined
-def solve_node(i, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp):
+def solve_node(i, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta, gamma, f_J, qdd,
+               tmp):
     """Joint ``j`` of internal node ``C = nb + i`` given the wrenches ``f_a`` on
     ``C``'s ports (from joints solved before it) and ``G_a`` of its ports
     (:func:`port_blocks`): ``u = sum_a G_a^T f_a``,
-    ``f_J = beta_C - Y u`` (T10), ``qdd = W^T (W_m f_J + u + gamma)`` (T13).
+    ``f_J = beta_C - Y u`` (T10), ``qdd = W^T (W_m f_J + u + gamma)`` (T13); for a
+    joint with rotor inertia, ``qdd = (E F) tau + (P F)^T (u + gamma)`` (A3) of
+    ``docs/joints.md``, with ``E F = W^T W_m (P F)`` from the rows ``WtWm`` and
+    ``PF`` that :func:`joint_node` kept and the joint forces ``tau`` it took.
     ``tmp`` (>= 2, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
@@ -685,12 +689,25 @@ def solve_node(i, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp):
     mv6(Y[i], u, t)                                              # (T10)
     for r in range(6):
         fJ[r] = beta[i, r] - t[r]
+    v0, d = v_start[j], nv_joint[j]
+    if has_armature(armature, v0, d):                            # (A3)
+        for k in range(d):
+            acc = 0.0
+            for r in range(6):
+                acc += PF[v0 + k, r] * (u[r] + gamma[i, r])
+            for m in range(d):
+                EF = 0.0
+                for r in range(6):
+                    EF += WtWm[v0 + k, r] * PF[v0 + m, r]
+                acc += EF * tau[v0 + m]
+            qdd[v0 + k] = acc
+        return
     Wj = W[subspace[j]]                                          # (T13)
-    for k in range(nv_joint[j]):
+    for k in range(d):
         acc = 0.0
         for r in range(6):
-            acc += WtWm[v_start[j] + k, r] * fJ[r] + Wj[r, k] * (u[r] + gamma[i, r])
-        qdd[v_start[j] + k] = acc
+            acc += WtWm[v0 + k, r] * fJ[r] + Wj[r, k] * (u[r] + gamma[i, r])
+        qdd[v0 + k] = acc
 
 
 # --- refinement (docs/accuracy.md) ------------------------------------------------------
@@ -738,7 +755,8 @@ def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma,
     for k in range(n - 1, -1, -1):
         node = post[k]
         if node >= nb:
-            solve_node(node - nb, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+            solve_node(node - nb, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta,
+                       gamma, f_J, qdd, tmp)
 
 
 @pass_kernel
@@ -820,7 +838,8 @@ def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtW
     for k in range(hi - 1, lo - 1, -1):
         n = post[k]
         if n >= nb:
-            solve_node(n - nb, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+            solve_node(n - nb, nb, tree, js, kin, bodies[11], tau, G, Y, WtWm, PF, beta, gamma,
+                       f_J, qdd, tmp)
 
 
 #: forests of at least this many bodies run their trees' subtrees in parallel

@@ -506,7 +506,8 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
                 go = budget > 0 or descend(n, locking, step, dwell, dt, keep, region)
             desc[n] = go
         if go:
-            solve_node(n - nb, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+            solve_node(n - nb, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta, gamma,
+                       f_J, qdd, tmp)
             solved += 1
             e -= 1
             continue
@@ -675,7 +676,8 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
             spring_force(s, stage_kind, stage_q, stage_v, bodies[8], q_spring, q, tau)
         joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, tmp)
         port_blocks(i, nb, tree, Phi, G)
-        solve_node(i, nb, tree, js, kin, G, Y, WtWm, beta, gamma, f_J, qdd, tmp)
+        solve_node(i, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta, gamma, f_J, qdd,
+                   tmp)
         val = 0.0
         for k in range(v_start[j], v_start[j] + nv_joint[j]):
             val += wA[k] * qdd[k] * qdd[k]
