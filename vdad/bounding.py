@@ -175,9 +175,13 @@ def unpack(kind, c, R, h):
 def place_volume(kind, c, R, h, Rw, pw, oc, oR, oh):
     """A volume ``(c, R, h)`` given in a frame of world pose ``(Rw, pw)``, in world
     coordinates, into ``(oc, oR, oh)`` (an AABB: the world box enclosing the placed
-    box; an empty volume stays empty)."""
+    box; an empty volume stays empty; a sphere's ``R`` is neither read nor written)."""
     for a in range(3):
         oc[a] = pw[a] + Rw[a, 0] * c[0] + Rw[a, 1] * c[1] + Rw[a, 2] * c[2]
+    if kind == SPHERE:
+        oh[0] = h[0]
+        return
+    for a in range(3):
         for b in range(3):
             oR[a, b] = Rw[a, 0] * R[0, b] + Rw[a, 1] * R[1, b] + Rw[a, 2] * R[2, b]
     if kind == AABB and h[0] >= 0:
@@ -193,41 +197,43 @@ def place_volume(kind, c, R, h, Rw, pw, oc, oR, oh):
 
 
 @inlined
-def copy_volume(c, R, h, oc, oR, oh):
+def copy_volume(kind, c, R, h, oc, oR, oh):
+    """``(c, R, h)`` into ``(oc, oR, oh)`` (a sphere: its centre and radius)."""
     for a in range(3):
         oc[a], oh[a] = c[a], h[a]
-        for b in range(3):
-            oR[a, b] = R[a, b]
+    if kind != SPHERE:
+        for a in range(3):
+            for b in range(3):
+                oR[a, b] = R[a, b]
 
 
 @inlined
 def merge_volumes(kind, ca, Ra, ha, cb, Rb, hb, oc, oR, oh):
     """The volume enclosing volumes ``a`` and ``b`` (one frame), in ``a``'s axes,
     into ``(oc, oR, oh)`` (not aliasing either): the enclosing sphere of two
-    spheres; the box with ``a``'s axes that holds both boxes' corners (world
-    axes for AABBs). An empty volume and ``v`` give ``v``."""
+    spheres (centre and radius ``h[0]`` only); the box with ``a``'s axes that
+    holds both boxes' corners (world axes for AABBs). An empty volume and ``v``
+    give ``v``."""
     if hb[0] < 0:
-        copy_volume(ca, Ra, ha, oc, oR, oh)
+        copy_volume(kind, ca, Ra, ha, oc, oR, oh)
         return
     if ha[0] < 0:
-        copy_volume(cb, Rb, hb, oc, oR, oh)
+        copy_volume(kind, cb, Rb, hb, oc, oR, oh)
         return
     if kind == SPHERE:
         ra, rb = ha[0], hb[0]
         d = np.sqrt((cb[0] - ca[0]) ** 2 + (cb[1] - ca[1]) ** 2 + (cb[2] - ca[2]) ** 2)
         if ra >= d + rb:                                    # a holds b
-            copy_volume(ca, Ra, ha, oc, oR, oh)
+            copy_volume(kind, ca, Ra, ha, oc, oR, oh)
             return
         if rb >= d + ra:
-            copy_volume(cb, Rb, hb, oc, oR, oh)
+            copy_volume(kind, cb, Rb, hb, oc, oR, oh)
             return
         r = max(0.5 * (d + ra + rb), max(ra, rb))
         t = (r - ra) / d if d > 0 else 0.0
         for a in range(3):
             oc[a] = ca[a] + t * (cb[a] - ca[a])
-            oh[a] = r
-            for b in range(3):
-                oR[a, b] = Ra[a, b]
+        oh[0] = r
         return
     for a in range(3):           # b's centre and reach along a's axis a: mid into oc, half oh
         cba = ((cb[0] - ca[0]) * Ra[0, a] + (cb[1] - ca[1]) * Ra[1, a]

@@ -145,26 +145,25 @@ def ellipse_area(view, x, y, d, r):
     w0x, w0y = -(c * qx - b * qy) / det, -(a * qy - b * qx) / det      # ellipse centre
     k = -1.0 / ((d * d - s + qx * w0x + qy * w0y) * f * f)             # E = k Q2, pixels
     E00, E01, E11 = k * a, k * b, k * c
-    L00 = np.sqrt(E00)
-    L10 = E01 / L00
-    L11 = np.sqrt(E11 - L10 * L10)
     p0x, p0y = 0.5 * W + f * w0x, 0.5 * H + f * w0y
     detE = E00 * E11 - E01 * E01
     rx, ry = np.sqrt(E11 / detE), np.sqrt(E00 / detE)                 # half bounding box
     if p0x + rx <= 0 or p0y + ry <= 0 or p0x - rx >= W or p0y - ry >= H:
         return 0.0
-    unit = np.pi
-    if p0x - rx < 0 or p0y - ry < 0 or p0x + rx > W or p0y + ry > H:   # exact disk-polygon
-        unit = 0.0
-        for e in range(4):                  # viewport corners (0,0), (W,0), (W,H), (0,H)
-            ux = (W if e == 1 or e == 2 else 0.0) - p0x
-            uy = (H if e >= 2 else 0.0) - p0y
-            vx = (W if e == 0 or e == 1 else 0.0) - p0x
-            vy = (H if e == 1 or e == 2 else 0.0) - p0y
-            unit += segment_disk_area(L00 * ux + L10 * uy, L11 * uy, L00 * vx + L10 * vy,
-                                      L11 * vy)
-        unit = abs(unit)
-    return unit / (L00 * L11)
+    if p0x - rx >= 0 and p0y - ry >= 0 and p0x + rx <= W and p0y + ry <= H:
+        return np.pi / np.sqrt(detE)                                   # wholly in view
+    L00 = np.sqrt(E00)
+    L10 = E01 / L00
+    L11 = np.sqrt(E11 - L10 * L10)
+    unit = 0.0                              # cut by the viewport: exact disk-polygon
+    for e in range(4):                      # viewport corners (0,0), (W,0), (W,H), (0,H)
+        ux = (W if e == 1 or e == 2 else 0.0) - p0x
+        uy = (H if e >= 2 else 0.0) - p0y
+        vx = (W if e == 0 or e == 1 else 0.0) - p0x
+        vy = (H if e == 1 or e == 2 else 0.0) - p0y
+        unit += segment_disk_area(L00 * ux + L10 * uy, L11 * uy, L00 * vx + L10 * vy,
+                                  L11 * vy)
+    return abs(unit) / (L00 * L11)
 
 
 @kernel

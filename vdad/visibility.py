@@ -185,7 +185,7 @@ def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, ground
         if k < nf:
             n = front[k]
             if grounded[n]:
-                copy_volume(lc[n], lR[n], lh[n], c[n], Rv[n], h[n])
+                copy_volume(kind, lc[n], lR[n], lh[n], c[n], Rv[n], h[n])
             else:
                 b = top[n]
                 place_volume(kind, lc[n], lR[n], lh[n], R[b], p[b], c[n], Rv[n], h[n])
