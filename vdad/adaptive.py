@@ -604,8 +604,7 @@ class AdaptiveDynamics:
             self._energy[0] = np.inf
             left_q[:] = np.nan
             return
-        if np.isfinite(self._energy[0]) and np.array_equal(q, left_q) \
-                and np.array_equal(qd, left_qd):
+        if np.isfinite(self._energy[0]) and (q == left_q).all() and (qd == left_qd).all():
             return
         self._energy[0] = np.nan
         self._cap(q, qd)

@@ -115,6 +115,8 @@ def check_real(name, value, shape=None, positive=False, nonnegative=False, error
 def check_count(name, value, minimum=1, error=InputError):
     """``value`` as an int if it is a whole number ``>= minimum``, or an error
     naming ``name``."""
+    if type(value) is int and value >= minimum:         # the common case, at once
+        return value
     what = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
     a = _as_real(value)[0]
     if a is None or a.ndim or not np.isfinite(a) or a != int(a) or a < minimum:

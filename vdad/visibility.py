@@ -244,13 +244,19 @@ def idle_loop_coverage(tree):
 
 def _frames(steps, cameras):
     """The ``steps`` (k,) of the frames, and the intrinsics (k, 4) and world poses
-    (k, 3, 3), (k, 3) of their ``cameras``, as the compiled adaptive steps take them."""
+    (k, 3, 3), (k, 3) of their cameras, as the compiled adaptive steps take them:
+    ``cameras`` (k) gives each camera's :func:`camera_arrays`."""
     k = len(cameras)
     views, Rc, pc = np.zeros((k, 4)), np.zeros((k, 3, 3)), np.zeros((k, 3))
-    for i, cam in enumerate(cameras):
-        views[i] = view_of(cam)
-        Rc[i], pc[i] = camera_pose(cam)
+    for i, (view, R, p) in enumerate(cameras):
+        views[i], Rc[i], pc[i] = view, R, p
     return np.array(steps, np.int64).reshape(k), views, Rc, pc
+
+
+def camera_arrays(camera):
+    """A camera's intrinsics (:func:`~vdad.projection.view_of`) and world pose
+    (:func:`~vdad.bounding.camera_pose`)."""
+    return (view_of(camera), *camera_pose(camera))
 
 
 class _Coverage:
@@ -269,6 +275,7 @@ class _Coverage:
         self.resolution = check_resolution(resolution)
         self.pixels = pixels
         self._last = (None, None)                        # a path's camera, at resolution
+        self._last_arrays = (None, None)                 # ... and its camera_arrays
         self._kin = Kinematics.empty(plan(self.model))
         self._moved = moved_arrays(tree)
 
@@ -378,7 +385,15 @@ class BoundingVolumes(_Coverage):
             return None
         constants = (self._codes, self._kin.arrays, self.body, self.world, self._N1,
                      self._moved, self._scratch)
-        return constants, _frames(steps, [self.camera(t) for t in times])
+        return constants, _frames(steps, [self._camera_arrays(t) for t in times])
+
+    def _camera_arrays(self, t):
+        """:func:`camera_arrays` of the camera at ``t`` (the last ones again while
+        the path returns the same camera)."""
+        cam = self.camera(t)
+        if cam is not self._last_arrays[0]:
+            self._last_arrays = (cam, camera_arrays(cam))
+        return self._last_arrays[1]
 
     def _refresh(self, front, adaptive):
         """Volumes in the group frame of the rigid ``front`` nodes whose cache is
