@@ -149,10 +149,12 @@ def tolerance(model, q, c=100.0):
 
 def small_compiled_run(upto="steps"):
     """The compiled kinematics (body positions and velocities), then (``upto``
-    ``"dynamics"`` or ``"steps"``) forward dynamics, then (``"steps"``) three
+    ``"dynamics"``, ``"steps"`` or ``"adaptive"``) forward dynamics, then three
     compiled RK4 steps with built-in forces (drag, random torques, a spring) of a
-    small seeded tree with armature: what tests/test_linalg.py compares between
-    processes and modes."""
+    small seeded tree with armature, then (``"adaptive"``) twelve compiled adaptive
+    steps of two hanging dogs (their springs and drag, view-bvh coverage under the
+    moved-pixels rule in the loop, region changes): what tests/test_linalg.py
+    compares between processes and modes."""
     from vdad.forces import Drag, Forces, RandomTorques, Springs
     from vdad.kinematics import kinematics
 
@@ -172,7 +174,16 @@ def small_compiled_run(upto="steps"):
                             Springs(model, [0], [[0.1, 0, 0]], [[0, 0, 1.0]], 20.0, 1.0)])
     sim = vdad.Simulator(model, q, qd, dt=1e-3, integrator="rk4", external=forces.external)
     sim.step(3)
-    return dict(out, q=sim.q.tolist(), qd=sim.qd.tolist())
+    out = dict(out, q=sim.q.tolist(), qd=sim.qd.tolist())
+    if upto != "adaptive":
+        return out
+    from vdad.scenes import hanging_dogs
+
+    dogs = hanging_dogs(n_dogs=2).simulator(method="view-bvh", threshold=1e-2, pixels="moved",
+                                            dwell=2, coverage_every=3)
+    dogs.step(12)
+    return dict(out, adaptive_q=dogs.q.tolist(), adaptive_qd=dogs.qd.tolist(),
+                changes=[s.rigidified + s.released for s in dogs.history])
 
 
 def node_bodies(tree, node):

@@ -147,11 +147,15 @@ def _run(code, env=None, cwd=None):
 
 def test_plain_python_mode_gives_the_compiled_result():
     """NUMBA_DISABLE_JIT=1 runs the kernels as plain Python (a debugger can step
-    through a pass): the same accelerations as the compiled core, and the same
-    compiled steps (RK4, built-in forces: drag, random torques, a spring)."""
-    done = _run(SMALL.format(tests=str(ROOT / "tests"), upto="steps"), {"NUMBA_DISABLE_JIT": "1"})
-    out, expected = json.loads(done.stdout), small_compiled_run()
-    for name in ("p", "v", "qdd", "q", "qd"):    # kinematics, dynamics; steps, forces
+    through a pass): the same accelerations as the compiled core, the same
+    compiled steps (RK4, built-in forces: drag, random torques, a spring), and the
+    same compiled adaptive steps (forces, in-loop coverage, region changes)."""
+    done = _run(SMALL.format(tests=str(ROOT / "tests"), upto="adaptive"),
+                {"NUMBA_DISABLE_JIT": "1"})
+    out, expected = json.loads(done.stdout), small_compiled_run("adaptive")
+    assert sum(expected["changes"]) > 0                  # the region changed
+    assert out["changes"] == expected["changes"]
+    for name in ("p", "v", "qdd", "q", "qd", "adaptive_q", "adaptive_qd"):
         e = np.array(expected[name])
         np.testing.assert_allclose(np.array(out[name]), e, rtol=0,
                                    atol=1e-12 * max(1.0, np.abs(e).max()))
