@@ -501,7 +501,7 @@ class AdaptiveDynamics:
         the joint if ``qdd`` is not finite."""
         budget = 0 if self.budget is None else self.budget
         with compiling(evaluate):
-            ok = evaluate(first, self.predictive, budget, False, self.lookahead,
+            ok = evaluate(first, self.predictive, budget, False, False, self.lookahead,
                           self.drop == "lock", self.step_count + 1, self.dwell, self.dt,
                           self._keep, self.kappa, self.model.nb, *self._args()[:4], self._top,
                           self.groups.up, self._roots, q, qd, tau, self.kin.arrays,
@@ -764,9 +764,10 @@ class AdaptiveDynamics:
                           self.kin.arrays, r.arrays, self._stack)
         if nc and momentum:                     # the locking impulse on qd
             with compiling(evaluate):
-                evaluate(False, self.predictive, 0, True, False, False, step, 0, self.dt, 0.0,
-                         1.0, self.model.nb, *self._args()[:4], self._top, self.groups.up,
-                         self._roots, q, qd, qd, self.kin.arrays, self.data.arrays, r.arrays)
+                evaluate(False, self.predictive, 0, True, False, False, False, step, 0,
+                         self.dt, 0.0, 1.0, self.model.nb, *self._args()[:4], self._top,
+                         self.groups.up, self._roots, q, qd, qd, self.kin.arrays,
+                         self.data.arrays, r.arrays)
         self._stale_coverage = self._stale_coverage or self._refresh_on_change
         return int(r.counts[RIGIDIFIED]), int(r.counts[RELEASED])
 

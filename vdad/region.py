@@ -442,8 +442,8 @@ def active_kinematics(js, region, q, qd, velocities, kin):
 
 
 @pass_kernel
-def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dwell, dt, keep,
-             kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau_in, kin, work,
+def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, step, dwell, dt,
+             keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau_in, kin, work,
              region):
     """One evaluation of adaptive dynamics at ``(q, qd)`` (the module's steps 1-4):
     ``qdd`` of the active joints in ``work`` (zero where they coast). ``first``: the
@@ -454,7 +454,9 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
     the nodes left out are those to be locked at once. ``impulse``: the
     locking impulse instead (leaves from the front's momenta ``h``, ``c_J = 0``,
     ``tau = 0``, every active node solved), whose result are the new ``qd`` of the
-    active joints. Returns whether ``qdd`` is finite."""
+    active joints. ``placed``: ``kin`` holds the active joints' kinematics at ``(q,
+    qd)`` already (:func:`cap_energy` of the step before computed them). Returns
+    whether ``qdd`` is finite."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
     G = work[16]
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
@@ -464,7 +466,8 @@ def evaluate(first, predictive, budget, impulse, lookahead_on, locking, step, dw
     stage_stiffness, q_spring, damping, armature, gravity = bodies[8], bodies[9], bodies[10], \
         bodies[11], bodies[4]
     joint = tree[2]
-    active_kinematics(js, region, q, qd, not impulse, kin)
+    if not placed:
+        active_kinematics(js, region, q, qd, not impulse, kin)
     c_J = kin[8]
     for x in range(counts[N_JOINTS]):                   # joint forces of the active joints
         j = joints[x]
@@ -995,16 +998,18 @@ def cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin):
     NaN becomes ``T + U`` (the reference state), and where ``T + U`` exceeds the
     cap, the active joints' velocities are scaled by ``sqrt((cap - U) / T)``
     (zero if ``U`` alone exceeds it), which brings the kinetic energy to
-    ``cap - U``, and ``removed`` grows by the excess. An infinite cap: nothing."""
+    ``cap - U``, and ``removed`` grows by the excess. An infinite cap: nothing.
+    Returns whether ``kin`` then holds the active joints' kinematics at ``(q, qd)``
+    (computed for the energy, and ``qd`` not scaled): the next step's."""
     if energy[0] == np.inf:
-        return
+        return False
     hybrid_energy(nb, js, bodies, groups, top, region, q, qd, kin, energy[2:])
     T, U = energy[2], energy[3]
     if np.isnan(energy[0]):
         energy[0] = T + U
-        return
+        return True
     if not T + U > energy[0]:
-        return
+        return True
     s = np.sqrt(max(energy[0] - U, 0.0) / T) if T > 0.0 else 0.0
     energy[1] += (1.0 - s * s) * T
     v_start, nv_joint, joints, counts = js[6], js[7], region[6], region[10]
@@ -1012,6 +1017,7 @@ def cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin):
         j = joints[x]
         for k in range(v_start[j], v_start[j] + nv_joint[j]):
             qd[k] *= s
+    return False
 
 
 # --- integration of the active joints ---------------------------------------------------------
@@ -1143,7 +1149,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     q_last, qd_last = last
     active, counts, qdd = region[0], region[10], work[7]
     (codes, ckin, volumes, world, N1, moved, scratch), (due, views, Rcs, pcs) = coverage
-    f = 0
+    f, placed = 0, False          # placed: kin holds the active joints' at (q, qd)
     for s in range(n):
         step = step0 + s
         t = (time0 + s) * dt
@@ -1162,9 +1168,9 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         row[0], row[1] = counts[N_JOINTS], counts[FRONT]
         row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                              held, active, up, is_B, groups, pending, mark, order)
-        if not evaluate(True, predictive, budget, False, lookahead_on, locking, step + 1, dwell,
-                        dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau,
-                        kin, work, region):
+        if not evaluate(True, predictive, budget, False, placed, lookahead_on, locking, step + 1,
+                        dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
+                        qd, tau, kin, work, region):
             return s, 1
         if locking and counts[ACCELERATED] < counts[ASSEMBLED]:
             nc = lock_pruned(nb, up, region, stack)
@@ -1172,16 +1178,16 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                 change_region(nc, 0, step + 1, momentum, nb, js, tree, groups, top, roots, q,
                               qd, kin, region, stack)
                 if momentum:                    # the locking impulse (evaluate's impulse)
-                    evaluate(False, predictive, 0, True, False, False, step + 1, 0, dt, 0.0,
-                             1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd, kin,
-                             work, region)
+                    evaluate(False, predictive, 0, True, False, False, False, step + 1, 0, dt,
+                             0.0, 1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd,
+                             kin, work, region)
                 row[7] += counts[RIGIDIFIED]
             row[0], row[1] = counts[N_JOINTS], counts[FRONT]
             row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                                  held, active, up, is_B, groups, pending, mark, order)
-            if not evaluate(False, predictive, budget, False, lookahead_on, locking, step + 1,
-                            dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots,
-                            q, qd, tau, kin, work, region):
+            if not evaluate(False, predictive, budget, False, False, lookahead_on, locking,
+                            step + 1, dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top,
+                            up, roots, q, qd, tau, kin, work, region):
                 return s, 1
         euler_active(dt, js, bodies, region, q, qd, qdd)
         row[2], row[3], row[4], row[6] = (counts[ACCELERATED], counts[ASSEMBLED], counts[SOLVED],
@@ -1192,12 +1198,12 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             change_region(nc, nr, step + 1, momentum, nb, js, tree, groups, top, roots, q, qd,
                           kin, region, stack)
             if nc and momentum:
-                evaluate(False, predictive, 0, True, False, False, step + 1, 0, dt, 0.0, 1.0,
-                         nb, js, tree, bodies, groups, top, up, roots, q, qd, qd, kin, work,
+                evaluate(False, predictive, 0, True, False, False, False, step + 1, 0, dt, 0.0,
+                         1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd, kin, work,
                          region)
             row[7] += counts[RIGIDIFIED]
             row[8] += counts[RELEASED]
-        cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin)
+        placed = cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin)
         if not active_state_ok(dt, js, bodies, region, rotational, q, qd):
             return s, 2
         if stop_on_change and row[7] + row[8]:
