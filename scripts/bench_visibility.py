@@ -28,14 +28,15 @@ from bench_dynamics import DOCS, dog_forest, fmt, median_us, medians_us, write_s
 from numba import njit
 
 import vdad
+from vdad.adaptive import AdaptiveDynamics
 from vdad.bounding import VOLUMES
 from vdad.camera import Camera
-from vdad.kinematics import kinematics_pass, plan
 from vdad.quantities import total_energy
+from vdad.region import N_JOINTS
 from vdad.render.context import renderer_name
 from vdad.render.counting import PixelCounter
 from vdad.scenes import pendulum
-from vdad.visibility import BoundingVolumes, RenderedCounts, bvh_pass
+from vdad.visibility import BoundingVolumes, RenderedCounts, cover, region_bvh_pass
 
 MARK = ("<!-- bench_visibility:start -->", "<!-- bench_visibility:end -->")
 TABLE1_THRESHOLD = 0.003           # pixels x rad per step
@@ -58,33 +59,57 @@ def setups():
 
 
 @njit
-def _in_loop(k, codes, view, Rc, pc, nb, js, q, kin, left, right, body, world, N1, N, moved,
-             scratch):
-    """``k`` evaluations of :func:`vdad.visibility.bvh_pass` from compiled code, as
-    the compiled adaptive steps call it once per frame."""
+def _in_loop(k, codes, view, Rc, pc, nb, left, right, first, hybrid, R_top, p_top, poses, body,
+             world, N1, N, moved, scratch):
+    """``k`` evaluations of :func:`vdad.visibility.region_bvh_pass` from compiled
+    code, as the compiled adaptive steps call it once per frame (the active
+    joints' poses ``R_top``, ``p_top`` given: the step computes them)."""
     for _ in range(k):
-        bvh_pass(codes, view, Rc, pc, nb, js, q, kin, left, right, body, world, N1, N, moved,
-                 scratch)
+        region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, R_top, p_top,
+                        poses, body, world, N1, N, moved, scratch)
 
 
 @njit
-def _poses_in_loop(k, js, q, kin):
-    """``k`` placements of every body (the part of :func:`_in_loop` that a step of
-    the full DCA has already done at its state)."""
-    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work = kin
+def _placed_in_loop(k, codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
+                    scratch):
+    """``k`` evaluations of :func:`vdad.visibility.cover`, every body's pose given
+    (as a step of the full DCA has them)."""
     for _ in range(k):
-        kinematics_pass(js, q, q, False, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work)
+        cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch)
 
 
-def in_loop_calls(cov, q, k):
-    """Calls of ``k`` in-loop evaluations of ``cov`` (all of them, and the poses only)."""
+def hybrids(model, tree, q):
+    """Adaptive dynamics at ``q`` with every joint active, and with every joint
+    rigid that may be (floating bases stay active)."""
+    active = AdaptiveDynamics(model, 1e-3, tree, threshold=0.0)
+    rigid = AdaptiveDynamics(model, 1e-3, tree, threshold=0.0)
+    nodes = [n for n in range(model.nb, tree.n_nodes) if not rigid.region.pinned[n]]
+    rigid.rigidify(nodes, q, np.zeros(model.nv))
+    return active, rigid
+
+
+def in_loop_calls(cov, q, k, adaptives):
+    """Calls of ``k`` in-loop evaluations of ``cov``: from the step's kinematics of
+    each of ``adaptives`` (:func:`hybrids`), and from every body's pose."""
     model, tree = cov.model, cov.tree
     constants, (_, views, Rc, pc) = cov.loop_coverage([0], [0.0])
-    codes, kin, body, world, N1, moved, scratch = constants
-    args = (codes, tuple(views[0]), Rc[0], pc[0], model.nb, plan(model).arrays, q, kin,
-            tree.arrays[0], tree.arrays[1], body, world, N1, np.empty(tree.n_nodes + 1), moved,
-            scratch)
-    return (lambda: _in_loop(k, *args)), (lambda: _poses_in_loop(k, plan(model).arrays, q, kin))
+    codes, first, poses, body, world, N1, moved, scratch = constants
+    camera = (codes, tuple(views[0]), Rc[0], pc[0], model.nb, tree.arrays[0], tree.arrays[1])
+    N = np.empty(tree.n_nodes + 1)
+    calls = []
+    for ad in adaptives:
+        kin = ad.front_kinematics(q)
+        args = camera + (first, ad.group_frames, kin.R, kin.p, poses, body, world, N1, N, moved,
+                         scratch)
+        calls.append(lambda a=args: _in_loop(k, *a))
+    R, p = vdad.Simulator(model, q).body_poses()
+    args = camera + (body, R, p, world, N1, N, moved, scratch)
+    return calls + [lambda: _placed_in_loop(k, *args)]
+
+
+#: the in-loop evaluations timed: from the step's kinematics with every joint
+#: active and every joint rigid, and with every body's pose given
+IN_LOOP = ("loop", "rigid", "placed")
 
 
 def coverage_row(name, model, tree, camera, q, budget):
@@ -96,20 +121,19 @@ def coverage_row(name, model, tree, camera, q, budget):
     k = max(10, 20000 // model.nb)
     fns = {"dca_step_ms": lambda: sim.step(k), "dca_call_ms": lambda: sim.step(1)}
     per = {"dca_step_ms": k, "dca_call_ms": 1}
+    adaptives = hybrids(model, tree, q)
+    row["rigid_joints"] = int(model.nb - adaptives[1].region.counts[N_JOINTS])
     for volume in VOLUMES:
         cov = BoundingVolumes(tree, camera, volume, "min")
         fns[f"bvh_{volume}_ms"], per[f"bvh_{volume}_ms"] = (lambda c=cov: c(0.0, q)), 1
-        fns[f"bvh_{volume}_loop_ms"], fns[f"bvh_{volume}_poses_ms"] = in_loop_calls(cov, q, k)
-        per[f"bvh_{volume}_loop_ms"] = per[f"bvh_{volume}_poses_ms"] = k
+        for where, call in zip(IN_LOOP, in_loop_calls(cov, q, k, adaptives), strict=True):
+            fns[f"bvh_{volume}_{where}_ms"], per[f"bvh_{volume}_{where}_ms"] = call, k
     for key, us in medians_us(fns, 3 * budget).items():
         row[key] = us / 1e3 / per[key]
     for volume in VOLUMES:
-        for where in ("", "_loop"):
+        for where in ("",) + tuple(f"_{w}" for w in IN_LOOP):
             row[f"bvh_{volume}{where}_of_dca"] = (row[f"bvh_{volume}{where}_ms"]
                                                   / row["dca_step_ms"])
-        row[f"bvh_{volume}_placed_of_dca"] = ((row[f"bvh_{volume}_loop_ms"]
-                                               - row[f"bvh_{volume}_poses_ms"])
-                                              / row["dca_step_ms"])
     R, p = vdad.Simulator(model, q).body_poses()
     for method in ("queries", "merged"):
         cov = RenderedCounts(tree, camera, method=method)
@@ -192,17 +216,21 @@ def write(result):
                          "counts_merged_coarse_ms")) + " |")
     lines += ["", "Bounding-volume coverage of every node (eq. 7) against one step of the "
               "compiled full DCA of the same model, timed in turns (the step loop's time "
-              "per step; one `step(1)` call from Python in brackets): called from Python, "
-              "inside compiled code as the adaptive steps evaluate it once per frame, and "
-              "inside compiled code without placing the bodies (the poses a DCA step has "
-              "computed). Target (issue 16): at most 10 %.", "",
-              "| scene | DCA step ms | " + " | ".join(
-                  f"{v}: Python / compiled / placed" for v in VOLUMES) + " |",
-              "|---|---|---|---|---|"]
+              "per step; one `step(1)` call from Python in brackets): called from Python "
+              "(every body placed at q); inside compiled code as the adaptive steps "
+              "evaluate it once per frame, from the active joints' kinematics of the step, "
+              "with every joint active (*active*) and with every joint rigid that may be "
+              "(*rigid*: all but the dogs' free joints; the bodies placed from their "
+              "groups); and every body's pose given (*posed*). Target (issue 16): at most "
+              "10 %.", "",
+              "| scene | DCA step ms | rigid joints | " + " | ".join(
+                  f"{v}: Python / active / rigid / posed" for v in VOLUMES) + " |",
+              "|---|---|---|---|---|---|"]
     for r in cov:
         lines.append(f"| {r['model']} | {fmt(r['dca_step_ms'], 3)} ({fmt(r['dca_call_ms'], 3)}) | "
+                     f"{r['rigid_joints']} | "
                      + " | ".join(" / ".join(f"{100 * r[f'bvh_{v}{w}_of_dca']:.1f} %"
-                                             for w in ("", "_loop", "_placed"))
+                                             for w in ("", "_loop", "_rigid", "_placed"))
                                   for v in VOLUMES) + " |")
     lines += ["", f"Table 1 (20-body pendulum, 19 revolute joints + the root, dt = 1 ms, "
               f"threshold {TABLE1_THRESHOLD} pixel rad per step, default camera: the whole "

@@ -9,6 +9,7 @@ import pytest
 from strategies import moved_pixels, node_bodies, random_configuration, random_tree
 
 from vdad import Body, Geom, Model, Simulator
+from vdad.adaptive import AdaptiveDynamics
 from vdad.assembly import AssemblyTree
 from vdad.bounding import areas, body_volumes, place
 from vdad.camera import Camera
@@ -62,9 +63,7 @@ def test_moved_pixels_weight_a_node_by_the_bodies_its_joints_displace(seed):
     """pixels="moved" equals the brute-force rule from body sets: a joint moves its
     successor's subtree, or the smaller side inside a floating tree."""
     model = random_tree(seed, n=14, roots=2, springs=False)     # a floating and a fixed tree
-    bodies = [replace(b, geoms=(Geom("sphere", (0.05 + 0.02 * i,)),))
-              for i, b in enumerate(model.bodies)]
-    model = Model(bodies, model.joints, name=model.name)
+    model = _with_spheres(model)
     tree = AssemblyTree.balanced(model)
     q = random_configuration(model, np.random.default_rng(seed))
     camera = Camera(position=(0.0, -12.0, 2.0), target=(0.0, 0.0, 0.0), yfov=1.2)
@@ -74,6 +73,42 @@ def test_moved_pixels_weight_a_node_by_the_bodies_its_joints_displace(seed):
     np.testing.assert_allclose(N, moved_pixels(tree, per_body), rtol=1e-12)
     # the floating tree's smaller sides matter: successor subtrees alone differ
     assert not np.allclose(N, moved_pixels(tree, per_body, floating=False))
+
+
+def _with_spheres(model):
+    bodies = [replace(b, geoms=(Geom("sphere", (0.05 + 0.02 * i,)),))
+              for i, b in enumerate(model.bodies)]
+    return Model(bodies, model.joints, name=model.name)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 4, 5])
+def test_a_hybrid_places_its_bodies_from_their_groups(seed):
+    """With an adaptive region, the coverage that places every body takes the
+    active joints' poses and the rigid groups' frames (``region_bvh_pass``, as the
+    compiled steps evaluate it once per frame): the same ``N_M`` as the evaluation
+    at ``q``, for every volume and every rule that covers every node, with rigid
+    groups in a floating tree and a grounded one (a fixed tree rigid to the root)."""
+    model = _with_spheres(random_tree(seed, n=16, roots=2, composite=True, springs=False))
+    tree = AssemblyTree.balanced(model)
+    q = random_configuration(model, np.random.default_rng(seed))
+    ad = AdaptiveDynamics(model, 1e-3, tree, threshold=0.0)
+    nb = model.nb
+    for node in [n for n in range(nb, tree.n_nodes) if tree.up[n] < 0] + [None]:
+        if node is None:                # then the largest subtree left in the floating tree
+            node = max((n for n in range(nb, tree.n_nodes) if ad.active[n] and not ad.pinned[n]),
+                       key=lambda n: n - tree.first[n - nb])
+        if not ad.pinned[node]:
+            ad.rigidify(range(tree.first[node - nb] + nb, node + 1), q, np.zeros(model.nv))
+    groups = ad.front[ad.front >= nb]
+    assert np.any(ad.groups.grounded[groups]) and not np.all(ad.groups.grounded[groups])
+    camera = Camera(position=(0.0, -12.0, 2.0), target=(0.0, 0.0, 0.0), yfov=1.2)
+    for volume, estimate, pixels in [("sphere", "min", "own"), ("obb", "bodies", "own"),
+                                     ("aabb", "node", "own"), ("sphere", "min", "moved")]:
+        cov = BoundingVolumes(tree, camera, volume, estimate, pixels=pixels)
+        assert cov.covers_every_node
+        N = cov(0.0, q)
+        assert np.all(N[:-1] > 0)
+        np.testing.assert_allclose(cov(0.0, q, ad), N, rtol=1e-12)
 
 
 def test_moved_pixels_in_an_adaptive_region_equal_a_full_evaluation():

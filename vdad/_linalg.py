@@ -262,6 +262,15 @@ def identity_pose(R, p):
 
 
 @inlined
+def copy_pose(R, p, oR, op):
+    """``oR = R`` (3, 3), ``op = p`` (3,)."""
+    for r in range(3):
+        op[r] = p[r]
+        for s in range(3):
+            oR[r, s] = R[r, s]
+
+
+@inlined
 def compose_pose(Ra, pa, R, p, t):
     """``(R, p) = (Ra, pa) (R, p)`` in place: ``R = Ra R``, ``p = pa + Ra p`` (a pose
     given in frame ``a`` expressed where ``a`` has pose ``(Ra, pa)``); ``t`` (3, 3)

@@ -55,7 +55,7 @@ from .dca import body_arrays, dca_pass, leaf_inertias, make_data, plain_arrays
 from .dynamics import default_tree, forward_dynamics
 from .errors import InputError
 from .forces import Forces, ForceTables, body_forces, state_bodies
-from .hybrid import RigidGroups
+from .hybrid import RigidGroups, group_poses
 from .integrators import rk4
 from .kinematics import Kinematics, plan
 from .region import (
@@ -388,6 +388,15 @@ class AdaptiveDynamics:
         return self.region.visit[:self.region.counts[N_VISIT]]
 
     @property
+    def group_frames(self):
+        """``(visit, n_visit, active, grounded, top, rel_R, rel_p)``: the region's
+        front and its rigid groups' frames, as :func:`vdad.hybrid.group_poses`
+        takes them."""
+        r, g = self.region, self.groups
+        return (r.visit, int(r.counts[N_VISIT]), r.active, g.grounded, self._top, g.rel_R,
+                g.rel_p)
+
+    @property
     def front(self):
         """The rigid groups at the front of the active region (node ids, ascending)."""
         v = self.visit
@@ -447,9 +456,17 @@ class AdaptiveDynamics:
     def body_poses(self, q, bodies=None):
         """World poses ``R`` (k, 3, 3), ``p`` (k, 3) of ``bodies`` (default: all) at
         ``q``: each body's pose in its rigid group composed with the group's pose
-        from the active joints only (:meth:`RigidGroups.pose_in_group`, compiled)."""
-        bodies = np.arange(self.model.nb) if bodies is None else np.asarray(bodies, int)
+        from the active joints only (all: :func:`~vdad.hybrid.group_poses`; some:
+        :meth:`RigidGroups.pose_in_group`; compiled)."""
         kin = self.front_kinematics(q)
+        if bodies is None:                      # top-down from the front: O(bodies)
+            tree, nb = self.tree, self.model.nb
+            R, p = np.empty((tree.n_nodes + 1, 3, 3)), np.empty((tree.n_nodes + 1, 3))
+            with compiling(group_poses):
+                group_poses(nb, tree.arrays[0], tree.arrays[1], tree.first, *self.group_frames,
+                            kin.R, kin.p, R, p, np.empty((3, 3)))
+            return R[:nb], p[:nb]
+        bodies = np.asarray(bodies, int)
         _, R, p = self.groups.pose_in_group(bodies, self.active, (self._top, kin.R, kin.p))
         return R, p
 

@@ -106,7 +106,9 @@ class AssemblyTree(Immutable):
     ``ports`` (per node), ``n_slots``, ``n_nodes`` (bodies and
     internal nodes), ``up`` (parent node of every node, -1 at the roots),
     ``top`` (top body of every node: the body whose parent is outside it; -1 when
-    the node holds a ground leaf), ``n_ports`` (per node; ``max_ports``),
+    the node holds a ground leaf), ``first`` (per internal node: the first internal
+    index of its subtree, whose internal nodes are ``first[i]`` to ``i``),
+    ``n_ports`` (per node; ``max_ports``),
     ``pair_base``, ``slot_base`` (per node: its first block and slot; the
     internal nodes' ``n_inner_slots`` slots first), ``n_pairs``
     (the store of the blocks ``a <= c`` only, ``docs/design.md``), ``slot_joint``,
@@ -148,12 +150,14 @@ class AssemblyTree(Immutable):
         self.n_nodes = nb + len(joint)
         up = np.full(self.n_nodes, -1)
         top = np.arange(self.n_nodes)
+        first = np.arange(len(joint), dtype=np.int64)
         for i, (a, b) in enumerate(zip(left, right, strict=True)):
             up[b] = nb + i
             if a != GROUND:
                 up[a] = nb + i
             top[nb + i] = -1 if a == GROUND else top[a]
-        self.up, self.top = up, top
+            first[i] = min([i] + [first[c - nb] for c in (a, b) if c >= nb])
+        self.up, self.top, self.first = up, top, first
         self._plan()
 
     @staticmethod

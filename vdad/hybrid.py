@@ -30,6 +30,7 @@ import numpy as np
 
 from ._linalg import (
     compose_pose,
+    copy_pose,
     identity_pose,
     inlined,
     inverse3,
@@ -122,6 +123,13 @@ class RigidGroups:
 # --- kernels: one node each --------------------------------------------------------------
 
 @inlined
+def child_slot(child, n_nodes):
+    """The slot of an assembly-tree child id in the node stores (the ground, -1, is
+    slot ``n_nodes``)."""
+    return n_nodes if child < 0 else child
+
+
+@inlined
 def freeze_node(C, nb, tree, js, q, R_rel, p_rel, R3, groups):
     """Group data of internal node ``C`` from its children ``A`` (the ground: the
     world frame, massless) and ``B`` across its joint ``j`` at ``q`` (theory §6):
@@ -137,7 +145,7 @@ def freeze_node(C, nb, tree, js, q, R_rel, p_rel, R3, groups):
     ground = mass.shape[0] - 1
     i = C - nb
     A, B, j = left[i], right[i], joint[i]
-    Ag = ground if A < 0 else A
+    Ag = child_slot(A, ground)
     joint_placement(j, R0, p0, stage0, n_stages, stage_kind, stage_axis, stage_anchor,
                     stage_ref, stage_q, q, R_rel, p_rel, R3[0], R3[1], rel_p[C])
     TR, Tp = rel_R[C], rel_p[C]
@@ -283,6 +291,37 @@ def carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order):
                 dK[r, s] = 0.0
         mark[node] = False
     return n
+
+
+@inlined
+def group_poses(nb, left, right, first, visit, n_visit, active, grounded, top, rel_R, rel_p,
+                R_top, p_top, R, p, t):
+    """World poses ``R`` (n_nodes + 1, 3, 3), ``p`` (n_nodes + 1, 3) of every body
+    of the hybrid, top-down from the front: each front node ``F`` (the entries of
+    ``visit[:n_visit]`` that are not active) at its group's frame (the world if
+    ``grounded``, else the pose ``R_top``, ``p_top`` of its ``top`` body), then
+    down its subtree (internal ids ``first[F - nb]`` to ``F - nb``, parents first):
+    an ``A`` child in its parent's frame, the top body of a ``B`` child at
+    ``rel_R``, ``rel_p`` in it. Rows ``nb`` on hold the internal nodes' frames, the
+    last the ground's (scratch); ``t`` (3, 3) scratch. One pose copy per body and
+    one composition per internal node of a group: O(bodies), against
+    :func:`poses_in_groups`' O(depth) per body."""
+    n_nodes = nb + left.shape[0]
+    for e in range(n_visit):
+        F = visit[e]
+        if F >= nb and active[F]:
+            continue
+        if grounded[F]:
+            identity_pose(R[F], p[F])
+        else:
+            copy_pose(R_top[top[F]], p_top[top[F]], R[F], p[F])
+        if F < nb:
+            continue
+        for m in range(F - nb, first[F - nb] - 1, -1):
+            C, A, B = nb + m, child_slot(left[m], n_nodes), child_slot(right[m], n_nodes)
+            copy_pose(R[C], p[C], R[A], p[A])
+            copy_pose(rel_R[C], rel_p[C], R[B], p[B])
+            compose_pose(R[C], p[C], R[B], p[B], t)
 
 
 @kernel

@@ -65,7 +65,7 @@ from .hybrid import carry_forces, freeze_node
 from .integrators import normalize_stage, stage_nq, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
 from .newton_euler import known_wrench
-from .visibility import bvh_pass
+from .visibility import region_bvh_pass
 
 #: indices of :attr:`RegionData.counts`
 N_VISIT, N_JOINTS, ASSEMBLED, FRONT, SOLVED, ACCELERATED, LOOKAHEAD, RIGIDIFIED, RELEASED = \
@@ -1135,11 +1135,12 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     body); ``energy``: the energy cap's (:func:`cap_energy`, applied after each
     step); ``coverage`` = (constants, frames) of
     ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
-    :func:`vdad.visibility.bvh_pass` before the steps ``frames[0]`` (ascending) of
-    the call, each under its camera (none if empty). Writes each step's :data:`STEP_COUNTERS`
-    into ``counters`` (n, 9) and keeps the state before the last step in
-    ``last`` (q, qd). Stops after a step that changed the region if
-    ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
+    :func:`vdad.visibility.region_bvh_pass` before the steps ``frames[0]``
+    (ascending) of the call, each under its camera (none if empty), from the
+    active joints' kinematics that the step's first evaluation then takes. Writes
+    each step's :data:`STEP_COUNTERS` into ``counters`` (n, 9) and keeps the state
+    before the last step in ``last`` (q, qd). Stops after a step that changed the
+    region if ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
     status)``: 0, or 1 if a step's ``qdd`` was not finite (its state not
     advanced), 2 if its new state failed the checks (``last`` holds the one before)."""
     predictive, budget, lookahead_on, locking, momentum, dwell, dt, keep, kappa, threshold = \
@@ -1148,15 +1149,21 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     fjs, fkin, states, f_ext, tau = force_work
     q_last, qd_last = last
     active, counts, qdd = region[0], region[10], work[7]
-    (codes, ckin, volumes, world, N1, moved, scratch), (due, views, Rcs, pcs) = coverage
+    (codes, first, poses, volumes, world, N1, moved, scratch), (due, views, Rcs, pcs) = coverage
     f, placed = 0, False          # placed: kin holds the active joints' at (q, qd)
     for s in range(n):
         step = step0 + s
         t = (time0 + s) * dt
         if f < due.shape[0] and due[f] == s:    # N_M of the frame (Kim 2008 §5.3)
+            if not placed:                      # the step's own kinematics (evaluate)
+                active_kinematics(js, region, q, qd, True, kin)
+                placed = True
             v = views[f]
-            bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, js, q, ckin, tree[0],
-                     tree[1], volumes, world, N1, region[17], moved, scratch)
+            region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
+                            tree[1], first, (region[4], counts[N_VISIT], active, groups[4],
+                                             top, groups[5], groups[6]),
+                            kin[5], kin[6], poses, volumes, world, N1, region[17], moved,
+                            scratch)
             f += 1
         for i in range(q.shape[0]):
             q_last[i] = q[i]

@@ -44,6 +44,7 @@ from .bounding import (
 )
 from .camera import camera_at, check_path, check_resolution
 from .errors import InputError
+from .hybrid import child_slot, group_poses
 from .kinematics import Kinematics, kinematics_pass, plan, world_poses
 from .projection import box_scratch, view_of
 
@@ -54,12 +55,6 @@ PIXELS = ("own", "moved")                        # whose pixels weight a node's 
 
 def _ids(nodes):
     return np.ascontiguousarray(nodes, np.int64)
-
-
-@inlined
-def child_slot(child, n_nodes):
-    """The slot of an assembly-tree child id (the ground, -1, is slot n_nodes)."""
-    return n_nodes if child < 0 else child
 
 
 @pass_kernel
@@ -142,25 +137,50 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
         N[n] = combine(estimate, N1[n], N[n])
 
 
-@pass_kernel
-def bvh_pass(codes, view, Rc, pc, nb, js, q, kin, left, right, body, world, N1, N, moved,
-             scratch):
-    """Kim 2008 §5.3, eqs. 5-7, of the whole tree at configuration ``q`` (nq,) into
-    ``N`` (n_nodes + 1,): every body placed (:func:`~vdad.kinematics.kinematics_pass`,
-    poses only, into ``kin``; rigid joints keep their ``q``), :func:`coverage_pass`,
-    then, under the moved-pixels rule, :func:`moved_pass` (``moved`` its arrays).
-    ``codes`` (3,): volume kind, estimate, moved rule (0/1); ``scratch`` = (cc,
-    Rcam, box scratch). The one evaluation of :class:`BoundingVolumes` that covers
-    every node, called from Python and, once per frame, from the compiled adaptive
-    steps (``vdad.region.region_steps``)."""
-    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work = kin
-    kinematics_pass(js, q, q, False, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work)
+@inlined
+def cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch):
+    """Kim 2008 §5.3, eqs. 5-7, of the whole tree from the bodies' world poses
+    ``R``, ``p`` into ``N`` (n_nodes + 1,): :func:`coverage_pass`, then, under the
+    moved-pixels rule, :func:`moved_pass` (``moved`` its arrays). ``codes`` (3,):
+    volume kind, estimate, moved rule (0/1); ``scratch`` = (cc, Rcam, box
+    scratch)."""
     cc, Rcam, box = scratch
     coverage_pass(codes[0], codes[1], view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
                   cc, Rcam, box)
     if codes[2]:
         parent, root, floating, _, _, joint, sums = moved
         moved_pass(nb, parent, root, floating, left, right, joint, sums, N)
+
+
+@pass_kernel
+def bvh_pass(codes, view, Rc, pc, nb, js, q, kin, left, right, body, world, N1, N, moved,
+             scratch):
+    """:func:`cover` at configuration ``q`` (nq,), every body placed by
+    :func:`~vdad.kinematics.kinematics_pass` (poses only, into ``kin``; rigid joints
+    keep their ``q``): the evaluation of :class:`BoundingVolumes` without an
+    adaptive region."""
+    R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work = kin
+    kinematics_pass(js, q, q, False, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work)
+    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch)
+
+
+@pass_kernel
+def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, R_top, p_top, poses,
+                    body, world, N1, N, moved, scratch):
+    """:func:`cover` of a hybrid body: every body placed from the poses ``R_top``,
+    ``p_top`` (nb, ...) of the active joints' child bodies that a step of
+    adaptive dynamics computes, the rigid groups' bodies from their group's
+    (:func:`~vdad.hybrid.group_poses`, into ``poses`` = (R (n_nodes + 1, 3, 3),
+    p (n_nodes + 1, 3))). ``hybrid`` = (visit, n_visit, active, grounded, top,
+    rel_R, rel_p): the region's front and the groups' frames; ``first``: each
+    internal node's first internal id. The evaluation of :class:`BoundingVolumes`
+    with an adaptive region, once per frame inside the compiled adaptive steps
+    (``vdad.region.region_steps``)."""
+    visit, n_visit, active, grounded, top, rel_R, rel_p = hybrid
+    R, p = poses
+    group_poses(nb, left, right, first, visit, n_visit, active, grounded, top, rel_R, rel_p,
+                R_top, p_top, R, p, scratch[1])
+    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch)
 
 
 @pass_kernel
@@ -237,8 +257,8 @@ def idle_loop_coverage(tree):
     :meth:`BoundingVolumes.loop_coverage`, empty, so that numba compiles the loop
     once."""
     box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
-    constants = (np.zeros(3, np.int64), Kinematics.empty(plan(tree.model)).arrays, box, box,
-                 np.zeros(1), moved_arrays(tree), (np.empty(3), np.empty((3, 3)), box_scratch()))
+    constants = (np.zeros(3, np.int64), np.zeros(1, np.int64), box[1:], box, box, np.zeros(1),
+                 moved_arrays(tree), (np.empty(3), np.empty((3, 3)), box_scratch()))
     return _empty_like(constants), _frames([], [])
 
 
@@ -338,12 +358,8 @@ class BoundingVolumes(_Coverage):
             a[:nb] = b
         self.local[2][nb:] = -1.0
         self.stamp = np.full(n + 1, np.nan)
-        self._first = np.arange(n - nb)          # first internal id of each subtree
-        for m in range(n - nb):
-            for child in (tree.left[m], tree.right[m]):
-                if child >= nb:
-                    self._first[m] = min(self._first[m], self._first[child - nb])
         self._N1 = np.zeros(n + 1)
+        self._poses = (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)))   # group_poses' out
         self._scratch = (np.empty(3), np.empty((3, 3)), box_scratch())
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
                                 pixels == "moved"], np.int64)
@@ -358,13 +374,18 @@ class BoundingVolumes(_Coverage):
         cam = self.camera(t)
         view, (Rc, pc) = view_of(cam), camera_pose(cam)
         nb, N = self.model.nb, np.empty(self.tree.n_nodes + 1)
-        if adaptive is None or self.covers_every_node:
-            # eqs. 6-7 and world boxes place every body anyway: one pass over the
-            # whole tree from every body's pose (rigid joints keep their q)
+        if adaptive is None:             # every body placed at q (rigid joints keep their q)
             with compiling(bvh_pass):
                 bvh_pass(self._codes, view, Rc, pc, nb, plan(self.model).arrays, as_input(q),
                          self._kin.arrays, self._left, self._right, self.body, self.world,
                          self._N1, N, self._moved, self._scratch)
+            return N
+        if self.covers_every_node:       # eqs. 6-7 and world boxes place every body
+            kin = adaptive.front_kinematics(q)
+            with compiling(region_bvh_pass):
+                region_bvh_pass(self._codes, view, Rc, pc, nb, self._left, self._right,
+                                self.tree.first, adaptive.group_frames, kin.R, kin.p, self._poses,
+                                self.body, self.world, self._N1, N, self._moved, self._scratch)
             return N
         front, act = adaptive.front, adaptive.act
         self._refresh(front, adaptive)
@@ -376,14 +397,14 @@ class BoundingVolumes(_Coverage):
 
     def loop_coverage(self, steps, times):
         """The coverage arguments of the compiled adaptive steps
-        (``vdad.region.region_steps``), which evaluate :func:`bvh_pass` before each
+        (``vdad.region.region_steps``), which evaluate :func:`region_bvh_pass` before each
         of the ``steps`` (k,) of a call (ascending, counted from its first) with the
         camera at the given ``times`` (k,): ``(constants, frames)``, or None where
         this estimator does not cover every node (its region evaluation needs
         Python)."""
         if not self.covers_every_node:
             return None
-        constants = (self._codes, self._kin.arrays, self.body, self.world, self._N1,
+        constants = (self._codes, self.tree.first, self._poses, self.body, self.world, self._N1,
                      self._moved, self._scratch)
         return constants, _frames(steps, [self._camera_arrays(t) for t in times])
 
@@ -403,7 +424,7 @@ class BoundingVolumes(_Coverage):
         stale = front[(front >= self.model.nb) & (self.stamp[front] != since[front])]
         if len(stale):
             g = adaptive.groups
-            refresh_local(self._kind, self.model.nb, self._left, self._right, self._first,
+            refresh_local(self._kind, self.model.nb, self._left, self._right, self.tree.first,
                           _ids(stale), g.rel_R, g.rel_p, since, self.stamp, self.local,
                           tuple(np.zeros(a.shape[1:]) for a in self.local))
 

@@ -41,15 +41,18 @@ def _dynamics():
 def _adaptive():
     """Adaptive dynamics one Python-level step at a time (RK4, and semi-implicit
     with ``adaptive_loop`` off): evaluations, the look-ahead, region changes with
-    the locking impulse, and the view-dependent region coverage of eq. 5."""
+    the locking impulse, the view-dependent coverage of the region (eq. 5) and of
+    every node (eq. 7), and the bodies' poses from their groups."""
     from .scenes import pendulum
 
     scene = pendulum(8)
     for options in ({"budget": 3, "dwell": 0}, {"budget": 3, "integrator": "rk4"},
-                    {"method": "view-bvh", "threshold": 1e-3, "dwell": 0, "estimate": "node"}):
+                    {"method": "view-bvh", "threshold": 1e-3, "dwell": 0, "estimate": "node"},
+                    {"method": "view-bvh", "threshold": 1e-3, "dwell": 0}):
         sim = scene.simulator(**{"method": "adaptive", **options})
         sim.adaptive_loop = False
         sim.step(4)
+    sim.body_poses()
 
 
 def _loop():
