@@ -66,6 +66,7 @@ from ._linalg import (
     symmetric_part,
     zero6,
 )
+from ._pack import pack
 from .assembly import AssemblyTree
 from .checks import check_count, check_flag
 from .errors import InputError
@@ -90,7 +91,8 @@ class DCAData:
     accelerations; tau [nv]: the joint forces of the last evaluation (springs,
     dampers and actuation). X, GY [max ports, 6, 6], tmp [8, 6, 6]: scratch;
     a, f [nb, 6], cg [5, nv]: scratch of :func:`refine_pass`. ``kept``: whether
-    ``Phi`` keeps every node's blocks.
+    ``Phi`` keeps every node's blocks. ``packed``: the arguments of
+    :func:`dca_call` into these arrays (:func:`packed`; None until a call).
     """
 
     kin: Kinematics
@@ -113,6 +115,7 @@ class DCAData:
     G: np.ndarray
     layout: tuple
     kept: bool
+    packed: object = None
 
     @property
     def arrays(self) -> tuple:
@@ -891,3 +894,21 @@ def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     kinematics_pass(js, q, qd, True, *kin)
     dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
     return finite(q) and finite(qd) and finite(tau_in) and finite(f_ext) and finite(work[7])
+
+
+@kernel
+def dca_call(constants, q, qd, tau_in, f_ext):
+    """:func:`dca_pass` with its constant arguments ``(js, tree, bodies, kin,
+    work)`` from the :class:`~vdad._pack.Pack` ``constants`` (:func:`packed`): a
+    call from Python then converts five arguments instead of 81 (``vdad._pack``)."""
+    js, tree, bodies, kin, work = constants.data
+    return dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
+
+
+def packed(model, data):
+    """The constant arguments of :func:`dca_pass` on ``model`` into ``data`` (a
+    :class:`DCAData` of a tree of ``model``), packed once for :func:`dca_call`."""
+    if data.packed is None:
+        data.packed = pack((plan(model).arrays, data.layout, body_arrays(model),
+                            data.kin.arrays, data.arrays))
+    return data.packed

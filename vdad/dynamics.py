@@ -87,7 +87,7 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     if (_as_given(q, (model.nq,)) and _as_given(qd, (model.nv,))
             and (tau is None or _as_given(tau, (model.nv,)))
             and (f_ext is None or _as_given(f_ext, (model.nb, 6)))
-            and _evaluate(model, q, qd, tau, f_ext, tree, data)):
+            and _call(model, q, qd, tau, f_ext, data)):
         return data.qdd.copy()          # float arrays as the kernels take them, all finite
     q = check_configuration(model, "q", q)
     qd = check_vector("qd", qd, model.nv)
@@ -122,8 +122,10 @@ def _as_given(x, shape):
     C-contiguous, writable (:func:`~vdad._linalg.as_input`); its values are
     checked by the pass itself, and the full checks run only if that finds a
     non-finite number."""
-    return (type(x) is np.ndarray and x.dtype == np.float64 and x.shape == shape
-            and x.flags.c_contiguous and x.flags.writeable)
+    if type(x) is not np.ndarray or x.dtype != np.float64 or x.shape != shape:
+        return False
+    flags = x.flags
+    return flags.c_contiguous and flags.writeable
 
 
 def check_overflow(model, qdd, q, **inputs):
@@ -148,18 +150,23 @@ def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
     """:func:`forward_dynamics` of inputs already checked (q (nq,) and qd (nv,)
     finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``tree`` of
     ``model`` and its ``data``): what a simulator calls every step."""
-    _evaluate(model, q, qd, tau, f_ext, tree, data)
+    _evaluate(model, q, qd, tau, f_ext, data)
     return data.qdd.copy()
 
 
-def _evaluate(model, q, qd, tau, f_ext, tree, data):
-    """:func:`~vdad.dca.dca_pass` into ``data``; whether the inputs and ``qdd``
-    are all finite."""
-    with compiling(dca.dca_pass):
-        return dca.dca_pass(plan(model).arrays, data.layout, dca.body_arrays(model),
-                            as_input(q), as_input(qd), _NO_TAU if tau is None else as_input(tau),
-                            _NO_WRENCH if f_ext is None else as_input(f_ext), data.kin.arrays,
-                            data.arrays)
+def _evaluate(model, q, qd, tau, f_ext, data):
+    """:func:`_call` of any float arrays (made the kernels' type,
+    :func:`~vdad._linalg.as_input`)."""
+    return _call(model, as_input(q), as_input(qd), None if tau is None else as_input(tau),
+                 None if f_ext is None else as_input(f_ext), data)
+
+
+def _call(model, q, qd, tau, f_ext, data):
+    """:func:`~vdad.dca.dca_pass` into ``data`` (by :func:`~vdad.dca.dca_call`) of
+    arrays of the kernels' type; whether the inputs and ``qdd`` are all finite."""
+    with compiling(dca.dca_call):
+        return dca.dca_call(dca.packed(model, data), q, qd, _NO_TAU if tau is None else tau,
+                            _NO_WRENCH if f_ext is None else f_ext)
 
 
 _NO_TAU, _NO_WRENCH = np.zeros(0), np.zeros((0, 6))
