@@ -264,6 +264,26 @@ def thin_chain(n, moments, seed=2, com=(0.0, 0.0, -0.5), kinds=("revolute",)):
     return vdad.Model(bodies, joints, name=f"thin{n}")
 
 
+def welded_tip(r, tip_mass):
+    """Three bodies on hinges about seeded axes and a rod of ``tip_mass`` with
+    moments (0.1, 0.1, 0.1 r) times its mass, welded (a fixed joint) to the last."""
+    rng = np.random.default_rng(5)
+    bodies, joints = [], []
+    for i in range(3):
+        R = random_rotation(rng)
+        inertia = R @ np.diag([0.1, 0.08, 0.05]) @ R.T
+        bodies.append(vdad.Body(f"b{i}", 1.0, (0, 0, -0.5), 0.5 * (inertia + inertia.T)))
+        joints.append(vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}", "revolute",
+                                 axis=tuple(rng.normal(size=3)),
+                                 placement=vdad.Pose((0, 0, -1.0 if i else 0.0))))
+    R = random_rotation(rng)
+    inertia = tip_mass * R @ np.diag([0.1, 0.1, 0.1 * r]) @ R.T
+    bodies.append(vdad.Body("tip", tip_mass, (0, 0, -1.0), 0.5 * (inertia + inertia.T)))
+    joints.append(vdad.Joint("weld", "b2", "tip", "fixed",
+                             placement=vdad.Pose((0.1, 0.2, -1.0), (0.8, 0.3, -0.2, 0.5))))
+    return vdad.Model(bodies, joints, name=f"welded{r:g}")
+
+
 def thin_tree(seed, n, log_ratios):
     """:func:`random_tree` (every joint kind, composite joints, springs) whose
     bodies are made thin rods (principal moments ``a, a, a 10^x``) or point masses

@@ -1,5 +1,7 @@
 """The DCA against the reference algorithms (theory §8, checks 1, 2 and 7)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -15,6 +17,7 @@ from strategies import (
     thin_rod,
     thin_trees,
     tolerance,
+    welded_tip,
     with_armature,
 )
 
@@ -323,13 +326,41 @@ def test_models_without_thin_bodies_are_not_refined():
     from vdad.scenes import pendulum
 
     for model in (coil_chain(16), pendulum().model):
-        Iinv, raised = dca.leaf_inertias(model)
+        Iinv, raised, paid = dca.leaf_inertias(model)
         assert not raised.any() and dca.body_arrays(model)[12] == 0
         np.testing.assert_allclose(Iinv, np.linalg.inv(model.inertia), rtol=1e-12)
-    Iinv, raised = dca.leaf_inertias(thin_rod(1e-6))
-    assert raised.all()
+    Iinv, raised, paid = dca.leaf_inertias(thin_rod(1e-6))
+    assert raised.all() and not paid.any()                 # on a hinge: nothing to pay it
     moments = np.sort(1.0 / np.linalg.eigvalsh(Iinv[0]))
     np.testing.assert_allclose(moments, [1e-2, 0.1, 0.1], rtol=1e-12)  # raised to 0.1 of 0.1
+
+
+@pytest.mark.parametrize("tip_mass", [1e-3, 10.0])
+@pytest.mark.parametrize("r", [1e-4, 1e-8, 1e-12])
+def test_a_thin_body_on_a_fixed_joint_hands_its_raise_to_its_parent(r, tip_mass):
+    """(R4) of docs/accuracy.md (gymnasium's pusher: a 2.5 g dumbbell welded to the
+    wrist): a light thin tip's raise is paid back by its parent's leaf, so the
+    leaves' composite inertia is the model's (the reference CRBA of a model with
+    the leaf inertias gives the same M) and the DCA with one step of iterative
+    refinement instead of conjugate gradients is within 8 cond(M) eps of the
+    reference ABA; a 10 kg tip would take the parent's leaf below the floor, so it
+    stays raised and refined by conjugate gradients, as exact."""
+    model = welded_tip(r, tip_mass)
+    Iinv, raised, paid = dca.leaf_inertias(model)
+    assert raised.tolist() == [False, False, False, True]
+    assert paid[3] == (tip_mass < 1.0)
+    assert (dca.body_arrays(model)[12] == dca.ONE_STEP) == paid[3]
+    leaves = vdad.Model([dataclasses.replace(b, inertia=np.linalg.inv(Ii))
+                         for b, Ii in zip(model.bodies, Iinv, strict=True)], model.joints)
+    for seed in range(3):
+        q, qd, tau, f_ext = random_state(model, seed)
+        M = reference.crba(model, q)
+        if paid[3]:
+            np.testing.assert_allclose(reference.crba(leaves, q), M, rtol=0,
+                                       atol=1e-14 * np.abs(M).max())
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        tol = 8 * np.linalg.cond(M) * EPS
+        assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tol
 
 
 @pytest.mark.parametrize("kind", ["slides", "hinge"])

@@ -733,8 +733,9 @@ def test_gymnasium_models_load_by_default_with_mujocos_dynamics(name):
     leaving out contacts only (and the swimmer's fluid forces); with those off in
     MuJoCo, the accelerations under the imported actuators at random controls
     equal mj_forward's: the reference ABA's to 100 cond(M) eps, the DCA's too
-    (pusher's thin tip, whose plain leaf lost up to 5e-9, through the raised leaves
-    and the refinement of docs/accuracy.md)."""
+    (pusher's thin tip, whose plain leaf lost up to 5e-9, through the raised leaf
+    that the wrist pays back and one step of refinement, (R4) of
+    docs/accuracy.md)."""
     path = str(GYMNASIUM / f"{name}.xml")
     with pytest.warns(UserWarning, match="left out") as record:
         model, report = load_mjcf(path, report=True)

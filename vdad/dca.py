@@ -198,14 +198,17 @@ LEAF_FLOOR, LEAF_RAISE = 1e-2, 1e-1
 
 @lru_cache(maxsize=64)
 def leaf_inertias(model) -> tuple:
-    """(R2) of ``docs/accuracy.md``: the inverse rotational inertias (nb, 3, 3) that
-    the DCA's leaves use, and the mask (nb,) of the bodies where they differ from
-    the model's. Where a body's smallest principal moment is below
-    :data:`LEAF_FLOOR` times its scale ``max(I_max, m l^2)`` (``l`` the distance
-    from its centre of mass to its farthest joint: its own joint's frame, its
-    children's placements), its moments are raised to :data:`LEAF_RAISE` times the
-    scale: a thin rod or a point mass would put ``1 / I_min`` beside ``1 / (m l^2)``
-    in the leaf's blocks (T2), and the assembly (T11) would cancel them."""
+    """(R2) and (R4) of ``docs/accuracy.md``: the inverse rotational inertias (nb, 3,
+    3) that the DCA's leaves use, the mask ``raised`` (nb,) of the bodies whose
+    moments were raised, and the mask ``paid`` (nb,) of the raised bodies whose
+    raise their parent's leaf pays back. Where a body's smallest principal moment
+    is below :data:`LEAF_FLOOR` times its scale ``max(I_max, m l^2)`` (``l`` the
+    distance from its centre of mass to its farthest joint: its own joint's frame,
+    its children's placements), its moments are raised to :data:`LEAF_RAISE` times
+    the scale: a thin rod or a point mass would put ``1 / I_min`` beside ``1 / (m
+    l^2)`` in the leaf's blocks (T2), and the assembly (T11) would cancel them. A
+    raised body on a fixed joint hands its raise ``dI`` to its parent, whose leaf
+    takes ``I - R dI R^T`` where that stays above the floor (:func:`pay_back`)."""
     lever = np.linalg.norm(model.com, axis=1)
     for j in np.flatnonzero(model.parent >= 0):
         b = model.parent[j]
@@ -216,7 +219,28 @@ def leaf_inertias(model) -> tuple:
     leaf = np.maximum(moments, LEAF_RAISE * scale[:, None])
     Iinv = np.einsum("bij,bj,bkj->bik", axes, 1.0 / leaf, axes)
     Iinv[~raised] = np.linalg.inv(model.inertia[~raised])
-    return Iinv, raised
+    dI = np.einsum("bij,bj,bkj->bik", axes, leaf - moments, axes)
+    return Iinv, raised, pay_back(model, raised, dI, scale, Iinv)
+
+
+def pay_back(model, raised, dI, scale, Iinv):
+    """(R4) of ``docs/accuracy.md``: the mask (nb,) of the raised bodies on fixed
+    joints whose raise ``dI`` (nb, 3, 3; body axes) their parent's leaf takes off
+    its own inertia, written into ``Iinv`` (the parent's inverse leaf inertia). The
+    two bodies turn as one, so the rotational inertia ``dI`` moved from child to
+    parent (rotated by the weld ``R``) changes no entry of ``M``. A parent pays
+    when it is not raised itself and its inertia less what its welded children
+    hand it stays above :data:`LEAF_FLOOR` of its ``scale`` (nb,)."""
+    paid = np.zeros(model.nb, bool)
+    welded = np.flatnonzero(raised & (model.nv_joint == 0) & (model.parent >= 0))
+    for p in set(model.parent[welded].tolist()) - set(np.flatnonzero(raised).tolist()):
+        children = welded[model.parent[welded] == p]
+        R = model.placement_R[children]
+        leaf = model.inertia[p] - np.einsum("cij,cjk,clk->il", R, dI[children], R)
+        if np.linalg.eigvalsh(leaf)[0] >= LEAF_FLOOR * scale[p]:
+            Iinv[p] = np.linalg.inv(leaf)
+            paid[children] = True
+    return paid
 
 
 def spin_axes(model):
@@ -251,16 +275,18 @@ def body_arrays(model) -> tuple:
     ``stage_kind, stage_q, stage_v, stage_stiffness`` (ns,), ``q_spring`` (nq,),
     ``damping``, ``armature`` (nv,); and ``refine``, the most steps of
     :func:`refine_pass` (0 where no leaf was raised, or where every raise is square
-    to the spin axis of a planar model, :func:`spin_axes`)."""
+    to the spin axis of a planar model, :func:`spin_axes`; :data:`ONE_STEP` where
+    every other raise is paid back by a parent's leaf, :func:`pay_back`)."""
     js = plan(model)
-    Iinv, raised = leaf_inertias(model)
-    refined = raised.copy()                   # the raises that change M
-    axes = spin_axes(model) if raised.any() else None
+    Iinv, raised, paid = leaf_inertias(model)
+    refined = raised & ~paid                  # the raises that change M
+    axes = spin_axes(model) if refined.any() else None
     if axes is not None:               # planar: refine where a raise meets the spin axis
-        dI = np.linalg.inv(Iinv[raised]) - model.inertia[raised]
-        turned = np.abs(np.einsum("bij,bj->bi", dI, axes[raised])).max(axis=1)
-        refined[raised] = turned > 1e-9 * np.abs(dI).max(axis=(1, 2))
-    refine = min(2 * int(refined.sum()) + 4, MAX_REFINE) if refined.any() else 0
+        dI = np.linalg.inv(Iinv[refined]) - model.inertia[refined]
+        turned = np.abs(np.einsum("bij,bj->bi", dI, axes[refined])).max(axis=1)
+        refined[refined] = turned > 1e-9 * np.abs(dI).max(axis=(1, 2))
+    refine = (min(2 * int(refined.sum()) + 4, MAX_REFINE) if refined.any()
+              else ONE_STEP if paid.any() else 0)
     return (model.mass, model.com, model.inertia, Iinv, model.gravity, js.stage_kind,
             js.stage_q, js.stage_v, js.stage_stiffness, js.q_spring, js.damping, js.armature,
             refine)
@@ -295,6 +321,10 @@ def _zeros_like(a):
 
 #: the most conjugate-gradient steps of :func:`refine_pass`
 MAX_REFINE = 40
+
+#: ``refine`` of :func:`body_arrays` where every raise is paid back ((R4) of
+#: ``docs/accuracy.md``: ``M' = M``): one step of iterative refinement
+ONE_STEP = -1
 
 
 # --- joint forces ---------------------------------------------------------------------
@@ -774,7 +804,9 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
     on the raised leaves (:func:`rhs_passes`) as preconditioner; at most
     ``bodies[12]`` steps, until the preconditioned residual is below ``4 eps`` of
     the largest acceleration. The joint wrenches ``f_J`` are those of the
-    result (Newton-Euler's, linear in ``qdd``)."""
+    result (Newton-Euler's, linear in ``qdd``). With ``bodies[12]`` =
+    :data:`ONE_STEP` (``M' = M``, (R4)): the first correction alone, ``f_J``
+    Newton-Euler's before it (the correction is of the DCA's rounding)."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg, G = work
     nb, armature, steps = bodies[0].shape[0], bodies[11], bodies[12]
     x, r, z, p, Ap = cg[0], cg[1], cg[2], cg[3], cg[4]
@@ -788,6 +820,10 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
         for s in range(6):
             f_J[j, s] = f[j, s]
     rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z, tmp)
+    if steps == ONE_STEP:
+        for i in range(nv):
+            qdd[i] = x[i] + z[i]
+        return
     rz = 0.0
     for i in range(nv):
         p[i] = z[i]
@@ -882,7 +918,7 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
         for r in range(segments.shape[0] - 1):
             subtree_passes(segments[r], segments[r + 1], nb, js, tree, bodies, f_ext, kin, tau,
                            Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd, G, X, GY, tmp)
-    if bodies[12] > 0 and finite(qdd):
+    if bodies[12] != 0 and finite(qdd):
         refine_pass(js, tree, bodies, f_ext, kin, work, FULL, tau)
 
 

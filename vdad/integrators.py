@@ -303,7 +303,7 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
             p_next[i] = p[i] + dt * (dT[i] + g[i])
         rhs_passes(nb, js, tree, kin, inert[11], p_next, G, b, Y, WtWm, PF, beta, gamma, f_J,
                    qdd, tmp)
-        if inert[12] > 0:
+        if inert[12] != 0:
             refine_pass(js, tree, inert, no_wrench, kin, work, MASS, p_next)
         change, size = 0.0, 1e-300
         for i in range(nv):
