@@ -284,6 +284,22 @@ def welded_tip(r, tip_mass):
     return vdad.Model(bodies, joints, name=f"welded{r:g}")
 
 
+def light_chain(ratio, light, n=5, seed=3):
+    """A chain of ``n`` unit-mass bodies on hinges about seeded axes, body
+    ``light`` of mass ``ratio`` (its inertia scaled with it)."""
+    rng = np.random.default_rng(seed)
+    bodies, joints = [], []
+    for i in range(n):
+        m = ratio if i == light else 1.0
+        R = random_rotation(rng)
+        inertia = m * R @ np.diag([0.1, 0.08, 0.05]) @ R.T
+        bodies.append(vdad.Body(f"b{i}", m, (0, 0, -0.5), 0.5 * (inertia + inertia.T)))
+        joints.append(vdad.Joint(f"j{i}", None if i == 0 else f"b{i - 1}", f"b{i}", "revolute",
+                                 axis=tuple(rng.normal(size=3)),
+                                 placement=vdad.Pose((0, 0, -1.0 if i else 0.0))))
+    return vdad.Model(bodies, joints, name=f"light{ratio:g}")
+
+
 def thin_tree(seed, n, log_ratios):
     """:func:`random_tree` (every joint kind, composite joints, springs) whose
     bodies are made thin rods (principal moments ``a, a, a 10^x``) or point masses
@@ -304,9 +320,29 @@ def thin_tree(seed, n, log_ratios):
                       name=f"thin{seed}")
 
 
+def light_tree(seed, n, log_ratios):
+    """:func:`random_tree` (every joint kind, composite joints, springs) whose
+    bodies' masses and inertias are scaled by ``10^x`` in turn, ``x`` from
+    ``log_ratios``: bodies light against their neighbours ((R5) of
+    docs/accuracy.md)."""
+    base = random_tree(seed, n=n, composite=True)
+    bodies = [replace(body, mass=body.mass * 10.0 ** log_ratios[i % len(log_ratios)],
+                      inertia=np.asarray(body.inertia) * 10.0 ** log_ratios[i % len(log_ratios)])
+              for i, body in enumerate(base.bodies)]
+    return vdad.Model(bodies, base.joints, gravity=base.gravity, q_spring=base.q_spring,
+                      name=f"light{seed}")
+
+
 #: hypothesis: random trees of thin rods and point masses, principal-moment
 #: ratios down to 1e-10 (:func:`thin_tree`), with a state seed
 thin_trees = st.builds(
     lambda seed, n, x: (thin_tree(seed, n, x), seed),
     st.integers(0, 2 ** 16), st.integers(2, 9),
     st.lists(st.floats(-10.0, 0.0), min_size=1, max_size=9))
+
+#: hypothesis: random trees of bodies whose masses differ by up to 1e8
+#: (:func:`light_tree`), with a state seed
+light_trees = st.builds(
+    lambda seed, n, x: (light_tree(seed, n, x), seed),
+    st.integers(0, 2 ** 16), st.integers(2, 9),
+    st.lists(st.floats(-8.0, 0.0), min_size=1, max_size=9))

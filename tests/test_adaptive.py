@@ -686,8 +686,8 @@ def test_adaptive_dynamics_of_thin_bodies_says_it_is_not_refined():
     figure; the scenes, whose DCA needs no refinement, say nothing."""
     model = thin_chain(5, [1e-12] * 3, com=(0.0, 0.1, -0.9))
     q, qd, tau, _ = random_state(model, 1)
-    with pytest.warns(UserWarning, match=r"thin bodies \('b0', 'b1', 'b2' and 2 more.*differ "
-                      r"from forward_dynamics' by [0-9.]+e\+0[5-9]"):
+    with pytest.warns(UserWarning, match=r"thin and light bodies \('b0', 'b1', 'b2' and 2 "
+                      r"more.*differ from forward_dynamics' by [0-9.]+e\+0[5-9]"):
         adaptive = AdaptiveDynamics(model, 1e-3, threshold=0.0)
     qdd = adaptive.accelerations(0.0, q, qd, tau)
     exact = vdad.forward_dynamics(model, q, qd, tau)

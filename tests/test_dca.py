@@ -7,6 +7,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from strategies import (
     coil_chain,
+    light_chain,
+    light_trees,
     node_bodies,
     random_chain,
     random_configuration,
@@ -319,6 +321,18 @@ def test_random_trees_of_thin_bodies_match_the_reference(drawn):
     assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
 
 
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(light_trees)
+def test_random_trees_of_light_bodies_match_the_reference(drawn):
+    """(R5) of docs/accuracy.md on random trees (every joint kind, composite joints,
+    springs) whose bodies' masses and inertias are scaled by 10^x, x down to -8:
+    the DCA equals the reference ABA within 100 cond(M) eps."""
+    model, seed = drawn
+    q, qd, tau, f_ext = random_state(model, seed)
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
+
+
 def test_models_without_thin_bodies_are_not_refined():
     """Leaves are raised, and the accelerations refined, only where a body's
     smallest principal moment is below dca.LEAF_FLOOR of its scale: the coil's
@@ -326,10 +340,10 @@ def test_models_without_thin_bodies_are_not_refined():
     from vdad.scenes import pendulum
 
     for model in (coil_chain(16), pendulum().model):
-        Iinv, raised, paid = dca.leaf_inertias(model)
-        assert not raised.any() and dca.body_arrays(model)[12] == 0
+        Iinv, raised, paid, mass, light = dca.leaf_inertias(model)
+        assert not (raised.any() or light.any()) and dca.body_arrays(model)[12] == 0
         np.testing.assert_allclose(Iinv, np.linalg.inv(model.inertia), rtol=1e-12)
-    Iinv, raised, paid = dca.leaf_inertias(thin_rod(1e-6))
+    Iinv, raised, paid, mass, light = dca.leaf_inertias(thin_rod(1e-6))
     assert raised.all() and not paid.any()                 # on a hinge: nothing to pay it
     moments = np.sort(1.0 / np.linalg.eigvalsh(Iinv[0]))
     np.testing.assert_allclose(moments, [1e-2, 0.1, 0.1], rtol=1e-12)  # raised to 0.1 of 0.1
@@ -346,7 +360,7 @@ def test_a_thin_body_on_a_fixed_joint_hands_its_raise_to_its_parent(r, tip_mass)
     reference ABA; a 10 kg tip would take the parent's leaf below the floor, so it
     stays raised and refined by conjugate gradients, as exact."""
     model = welded_tip(r, tip_mass)
-    Iinv, raised, paid = dca.leaf_inertias(model)
+    Iinv, raised, paid, mass, light = dca.leaf_inertias(model)
     assert raised.tolist() == [False, False, False, True]
     assert paid[3] == (tip_mass < 1.0)
     assert (dca.body_arrays(model)[12] == dca.ONE_STEP) == paid[3]
@@ -360,6 +374,30 @@ def test_a_thin_body_on_a_fixed_joint_hands_its_raise_to_its_parent(r, tip_mass)
                                        atol=1e-14 * np.abs(M).max())
         qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
         tol = 8 * np.linalg.cond(M) * EPS
+        assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tol
+
+
+@pytest.mark.parametrize("light", [2, 4])
+@pytest.mark.parametrize("ratio", [3e-3, 1e-4, 1e-8])
+def test_a_light_body_among_heavy_ones_is_as_exact_as_its_mechanics(ratio, light):
+    """(R5) of docs/accuracy.md: a body (the middle one of five, or the tip) whose
+    mass and inertia are ``ratio`` of its neighbours'. The plain DCA lost 756
+    cond(M) eps at 1e-3 and 0.7 relative at 1e-8 on the middle one (cond(M) =
+    300): one step of refinement where it is lighter than LEAF_FLOOR of its
+    neighbour, and below LIGHT_RAISE its leaf raised and conjugate gradients;
+    within 8 cond(M) eps of the reference ABA."""
+    model = light_chain(ratio, light)
+    refine = dca.body_arrays(model)[12]
+    leaves = dca.leaf_inertias(model)
+    if ratio >= dca.LIGHT_RAISE:
+        assert refine == dca.ONE_STEP and leaves.light[light] and not leaves.raised.any()
+    else:
+        assert refine > 0 and leaves.raised.tolist() == [i == light for i in range(5)]
+        assert leaves.mass[light] == pytest.approx(dca.LEAF_RAISE)
+    for seed in range(3):
+        q, qd, tau, f_ext = random_state(model, seed)
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        tol = 8 * np.linalg.cond(reference.crba(model, q)) * EPS
         assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tol
 
 

@@ -210,10 +210,12 @@ def warn_if_plain_is_inexact(model, stacklevel):
     of forward_dynamics even with every joint active (issue 19 leaves this open)."""
     error = plain_error(model)
     if error > PLAIN_TOLERANCE:
-        thin = [model.body_names[i] for i in np.flatnonzero(leaf_inertias(model)[1])]
+        leaves = leaf_inertias(model)
+        thin = [model.body_names[i] for i in np.flatnonzero(leaves.raised | leaves.light)]
         warnings.warn(f"adaptive dynamics of model {model.name!r} assembles its bodies' own "
                       f"inverse inertias, without the refinement that forward_dynamics gives "
-                      f"thin bodies ({names_text(thin)}; docs/accuracy.md): with every joint "
+                      f"thin and light bodies ({names_text(thin)}; docs/accuracy.md): with "
+                      f"every joint "
                       f"active its accelerations differ from forward_dynamics' by "
                       f"{error:.1e} of the largest (at q_neutral); use method='dca' where "
                       f"that matters", UserWarning, stacklevel=stacklevel)

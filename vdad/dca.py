@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from numba import prange
@@ -192,47 +193,75 @@ def node_blocks(tree, data, node):
 
 #: a leaf whose smallest principal moment is below ``LEAF_FLOOR`` of its body's
 #: scale has its moments raised to ``LEAF_RAISE`` of it, and the DCA's
-#: accelerations are refined ((R2) of ``docs/accuracy.md``)
-LEAF_FLOOR, LEAF_RAISE = 1e-2, 1e-1
+#: accelerations are refined ((R2) of ``docs/accuracy.md``); so has a body lighter
+#: than ``LIGHT_RAISE`` of its heaviest neighbour its whole inertia raised to
+#: ``LEAF_RAISE`` of that neighbour's mass, and one lighter than ``LEAF_FLOOR`` of it
+#: (but not that light) its accelerations refined by one step ((R5))
+LEAF_FLOOR, LEAF_RAISE, LIGHT_RAISE = 1e-2, 1e-1, 1e-3
+
+
+class Leaves(NamedTuple):
+    """What the DCA's leaves use in place of the bodies' own inertias
+    (:func:`leaf_inertias`; (R2), (R4), (R5) of ``docs/accuracy.md``)."""
+
+    Iinv: np.ndarray       # (nb, 3, 3) inverse rotational inertias, body axes
+    raised: np.ndarray     # (nb,) bodies whose leaf inertia was raised (thin or light)
+    paid: np.ndarray       # (nb,) raised bodies whose raise their parent pays back
+    mass: np.ndarray       # (nb,) the leaves' masses
+    light: np.ndarray      # (nb,) bodies light enough to refine, not to raise
 
 
 @lru_cache(maxsize=64)
-def leaf_inertias(model) -> tuple:
-    """(R2) and (R4) of ``docs/accuracy.md``: the inverse rotational inertias (nb, 3,
-    3) that the DCA's leaves use, the mask ``raised`` (nb,) of the bodies whose
-    moments were raised, and the mask ``paid`` (nb,) of the raised bodies whose
-    raise their parent's leaf pays back. Where a body's smallest principal moment
-    is below :data:`LEAF_FLOOR` times its scale ``max(I_max, m l^2)`` (``l`` the
+def leaf_inertias(model) -> Leaves:
+    """(R2), (R4) and (R5) of ``docs/accuracy.md``: the inertias that the DCA's
+    leaves use (:class:`Leaves`). Where a body's smallest principal moment is
+    below :data:`LEAF_FLOOR` times its scale ``max(I_max, m l^2)`` (``l`` the
     distance from its centre of mass to its farthest joint: its own joint's frame,
     its children's placements), its moments are raised to :data:`LEAF_RAISE` times
     the scale: a thin rod or a point mass would put ``1 / I_min`` beside ``1 / (m
     l^2)`` in the leaf's blocks (T2), and the assembly (T11) would cancel them. A
     raised body on a fixed joint hands its raise ``dI`` to its parent, whose leaf
-    takes ``I - R dI R^T`` where that stays above the floor (:func:`pay_back`)."""
+    takes ``I - R dI R^T`` where that stays above the floor (:func:`pay_back`).
+    A body lighter than :data:`LIGHT_RAISE` of its heaviest neighbour (a body it
+    shares a joint with) puts ``1 / m`` beside the neighbour's ``1 / M`` in the
+    same way: its leaf's mass and inertia are scaled up to :data:`LEAF_RAISE` of
+    that neighbour's mass; one lighter than :data:`LEAF_FLOOR` of it, but not that
+    light, keeps its inertia and is marked ``light``."""
     lever = np.linalg.norm(model.com, axis=1)
+    neighbour = np.zeros(model.nb)
     for j in np.flatnonzero(model.parent >= 0):
         b = model.parent[j]
         lever[b] = max(lever[b], np.linalg.norm(model.com[b] - model.placement_p[j]))
+        neighbour[j] = max(neighbour[j], model.mass[b])
+        neighbour[b] = max(neighbour[b], model.mass[j])
     moments, axes = np.linalg.eigh(model.inertia)
     scale = np.maximum(moments[:, -1], model.mass * lever ** 2)
-    raised = moments[:, 0] < LEAF_FLOOR * scale
+    thin = moments[:, 0] < LEAF_FLOOR * scale
+    k = np.maximum(1.0, LEAF_RAISE * neighbour / model.mass)            # the light raise
+    heavy = model.mass < LIGHT_RAISE * neighbour
+    k[~heavy] = 1.0
     leaf = np.maximum(moments, LEAF_RAISE * scale[:, None])
     Iinv = np.einsum("bij,bj,bkj->bik", axes, 1.0 / leaf, axes)
-    Iinv[~raised] = np.linalg.inv(model.inertia[~raised])
+    Iinv[~thin] = np.linalg.inv(model.inertia[~thin])
+    Iinv /= k[:, None, None]
     dI = np.einsum("bij,bj,bkj->bik", axes, leaf - moments, axes)
-    return Iinv, raised, pay_back(model, raised, dI, scale, Iinv)
+    light = (model.mass < LEAF_FLOOR * neighbour) & ~heavy
+    raised = thin | heavy
+    return Leaves(Iinv, raised, pay_back(model, raised, thin & ~heavy, dI, scale, Iinv),
+                  model.mass * k, light)
 
 
-def pay_back(model, raised, dI, scale, Iinv):
-    """(R4) of ``docs/accuracy.md``: the mask (nb,) of the raised bodies on fixed
-    joints whose raise ``dI`` (nb, 3, 3; body axes) their parent's leaf takes off
-    its own inertia, written into ``Iinv`` (the parent's inverse leaf inertia). The
-    two bodies turn as one, so the rotational inertia ``dI`` moved from child to
-    parent (rotated by the weld ``R``) changes no entry of ``M``. A parent pays
-    when it is not raised itself and its inertia less what its welded children
-    hand it stays above :data:`LEAF_FLOOR` of its ``scale`` (nb,)."""
+def pay_back(model, raised, movable, dI, scale, Iinv):
+    """(R4) of ``docs/accuracy.md``: the mask (nb,) of the ``movable`` (nb,) bodies
+    on fixed joints whose raise ``dI`` (nb, 3, 3; body axes) their parent's leaf
+    takes off its own inertia, written into ``Iinv`` (the parent's inverse leaf
+    inertia). The two bodies turn as one, so the rotational inertia ``dI`` moved
+    from child to parent (rotated by the weld ``R``) changes no entry of ``M``. A
+    parent pays when it is not ``raised`` (nb,) itself and its inertia less what
+    its welded children hand it stays above :data:`LEAF_FLOOR` of its ``scale``
+    (nb,)."""
     paid = np.zeros(model.nb, bool)
-    welded = np.flatnonzero(raised & (model.nv_joint == 0) & (model.parent >= 0))
+    welded = np.flatnonzero(movable & (model.nv_joint == 0) & (model.parent >= 0))
     for p in set(model.parent[welded].tolist()) - set(np.flatnonzero(raised).tolist()):
         children = welded[model.parent[welded] == p]
         R = model.placement_R[children]
@@ -273,23 +302,26 @@ def body_arrays(model) -> tuple:
     (nb, 3), ``inertia`` (nb, 3, 3), the leaves' inverse inertias ``Iinv`` (nb, 3, 3;
     :func:`leaf_inertias`), ``gravity`` (3,); the springs and dampers:
     ``stage_kind, stage_q, stage_v, stage_stiffness`` (ns,), ``q_spring`` (nq,),
-    ``damping``, ``armature`` (nv,); and ``refine``, the most steps of
+    ``damping``, ``armature`` (nv,); ``refine``, the most steps of
     :func:`refine_pass` (0 where no leaf was raised, or where every raise is square
     to the spin axis of a planar model, :func:`spin_axes`; :data:`ONE_STEP` where
-    every other raise is paid back by a parent's leaf, :func:`pay_back`)."""
+    every other raise is paid back by a parent's leaf, :func:`pay_back`, or some
+    body is light); and the leaves' masses (nb,)."""
     js = plan(model)
-    Iinv, raised, paid = leaf_inertias(model)
-    refined = raised & ~paid                  # the raises that change M
+    leaves = leaf_inertias(model)
+    refined = leaves.raised & ~leaves.paid & (leaves.mass == model.mass)
     axes = spin_axes(model) if refined.any() else None
     if axes is not None:               # planar: refine where a raise meets the spin axis
-        dI = np.linalg.inv(Iinv[refined]) - model.inertia[refined]
+        dI = np.linalg.inv(leaves.Iinv[refined]) - model.inertia[refined]
         turned = np.abs(np.einsum("bij,bj->bi", dI, axes[refined])).max(axis=1)
         refined[refined] = turned > 1e-9 * np.abs(dI).max(axis=(1, 2))
-    refine = (min(2 * int(refined.sum()) + 4, MAX_REFINE) if refined.any()
-              else ONE_STEP if paid.any() else 0)
-    return (model.mass, model.com, model.inertia, Iinv, model.gravity, js.stage_kind,
+    heavy = leaves.mass != model.mass              # light bodies raised: M' - M spreads wider
+    refined |= heavy                                        # the raises that change M
+    refine = (MAX_REFINE if heavy.any() else min(2 * int(refined.sum()) + 4, MAX_REFINE)
+              if refined.any() else ONE_STEP if (leaves.paid | leaves.light).any() else 0)
+    return (model.mass, model.com, model.inertia, leaves.Iinv, model.gravity, js.stage_kind,
             js.stage_q, js.stage_v, js.stage_stiffness, js.q_spring, js.damping, js.armature,
-            refine)
+            refine, leaves.mass)
 
 
 @lru_cache(maxsize=64)
@@ -298,7 +330,7 @@ def plain_arrays(model) -> tuple:
     the DCA of (T2)-(T13) without (R1)-(R3) of ``docs/accuracy.md``, which is what
     adaptive dynamics assembles (:mod:`vdad.hybrid`)."""
     b = body_arrays(model)
-    return (*b[:3], np.linalg.inv(model.inertia), *b[4:12], 0)
+    return (*b[:3], np.linalg.inv(model.inertia), *b[4:12], 0, model.mass)
 
 
 @lru_cache(maxsize=64)
@@ -308,7 +340,7 @@ def inert_arrays(model) -> tuple:
     (S3) of ``docs/accuracy.md``)."""
     b = body_arrays(model)
     return (*b[:4], _zeros_like(b[4]), *b[5:8], _zeros_like(b[8]), b[9], _zeros_like(b[10]),
-            b[11], b[12])
+            b[11], b[12], b[13])
 
 
 def _zeros_like(a):
@@ -322,8 +354,9 @@ def _zeros_like(a):
 #: the most conjugate-gradient steps of :func:`refine_pass`
 MAX_REFINE = 40
 
-#: ``refine`` of :func:`body_arrays` where every raise is paid back ((R4) of
-#: ``docs/accuracy.md``: ``M' = M``): one step of iterative refinement
+#: ``refine`` of :func:`body_arrays` where every raise is paid back or a body is
+#: light ((R4), (R5) of ``docs/accuracy.md``: ``M' = M``): one step of iterative
+#: refinement
 ONE_STEP = -1
 
 
@@ -367,15 +400,16 @@ def spring_force(s, stage_kind, stage_q, stage_v, stage_stiffness, q_spring, q, 
 
 @inlined
 def leaf(i, tree, bodies, f_ext, kin, Phi, b, X, Q, tmp):
-    """Blocks of body ``i``, theory (T2)-(T3) (:func:`leaf_blocks`), with ``X_h =
-    X_{h<-c}`` from its centre of mass to port ``h`` and the known wrench at the
-    centre of mass (:func:`~vdad.newton_euler.body_wrench`). The inbound
+    """Blocks of body ``i``, theory (T2)-(T3) (:func:`leaf_blocks`) with the leaf's
+    mass and inverse inertia (``bodies[13]``, ``bodies[3]``: :func:`leaf_inertias`),
+    ``X_h = X_{h<-c}`` from its centre of mass to port ``h`` and the known wrench
+    at the centre of mass (:func:`~vdad.newton_euler.body_wrench`). The inbound
     port is the body frame; the port of a child joint is that joint's child frame.
     ``X``, ``Q`` (>= ports, 6, 6): ``X_h`` and ``Ibar^-1 X_h^T``; ``tmp`` (>= 3, 6,
     6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    mass, com, Iinv = bodies[0], bodies[1], bodies[3]
+    mass, com, Iinv = bodies[13], bodies[1], bodies[3]
     R_rel, p_rel, R, v = kin[0], kin[1], kin[5], kin[7]
     P, s0 = n_ports[i], slot_base[i]
     m, c = mass[i], com[i]
