@@ -255,7 +255,8 @@ def imported_rows(budget):
             data.qpos[:], data.qvel[:] = q, qd
         sim = vdad.Simulator(model, q, qd, dt=report.dt)
         sim.step(STEPS)
-        t = medians_us({"fd": vdad_call(model, q, qd), "mj_forward": mujoco_forward_call(m, d),
+        t = medians_us({"fd": lambda model=model, q=q, qd=qd: vdad.forward_dynamics(model, q, qd),
+                        "mj_forward": mujoco_forward_call(m, d),
                         "step": lambda sim=sim: sim.step(STEPS),
                         "mj_step": mujoco_steps_call(m, d_step)}, budget)
         row = dict(model=name, bodies=model.nb, dofs=model.nv, forward_us=t["fd"],
@@ -271,8 +272,9 @@ def imported_rows(budget):
 
 def write_imported(rows, result):
     lines = [f"Median µs (vdad and MuJoCo timed in turns); {result['machine']}"
-             f"{' (quick run)' if result['quick'] else ''}. `forward_dynamics` as a user "
-             f"calls it (float arrays, the model's cached work arrays); a step: the "
+             f"{' (quick run)' if result['quick'] else ''}. `forward_dynamics(model, q, qd)` "
+             f"as a user calls it (float arrays; its cached work arrays, on the welded model "
+             f"where fixed joints hang below a body: `docs/design.md`, \"Welds\"); a step: the "
              f"simulator's compiled semi-implicit step loop (200 steps a call) against "
              f"`mj_step` (each file's own integrator, contact off) called 200 times from Python. "
              f"Target (issue 17): within 8x of MuJoCo.", "",

@@ -372,9 +372,54 @@ def test_a_thin_body_on_a_fixed_joint_hands_its_raise_to_its_parent(r, tip_mass)
         if paid[3]:
             np.testing.assert_allclose(reference.crba(leaves, q), M, rtol=0,
                                        atol=1e-14 * np.abs(M).max())
-        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext,           # the model's leaves,
+                                    tree=vdad.dynamics.default_tree(model))  # not welded
         tol = 8 * np.linalg.cond(M) * EPS
         assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tol
+
+
+def welded_chain(seed):
+    """:func:`random_tree` with a chain of two bodies welded below its first body
+    and a body on a hinge below them (fixed joints below a body, and a joint that
+    hangs from a welded body)."""
+    base = random_tree(seed, n=4)
+    root = base.body_names[0]
+    bodies = list(base.bodies) + [vdad.Body(f"w{i}", 0.3 + i, (0.1 * i, 0.05, -0.2),
+                                            np.diag([0.03, 0.03, 0.04 + 0.01 * i]))
+                                  for i in range(3)]
+    joints = list(base.joints) + [
+        vdad.Joint("weld0", root, "w0", "fixed",
+                   placement=vdad.Pose((0.2, -0.1, 0.3), (0.9, 0.1, -0.3, 0.2))),
+        vdad.Joint("weld1", "w0", "w1", "fixed",
+                   placement=vdad.Pose((0.0, 0.4, -0.1), (0.7, -0.4, 0.2, 0.5))),
+        vdad.Joint("hinge", "w1", "w2", "revolute", axis=(0.3, -0.5, 0.8),
+                   placement=vdad.Pose((0.1, 0.1, -0.5), (0.8, 0.2, 0.3, -0.4)))]
+    return vdad.Model(bodies, joints, gravity=base.gravity, name=f"welded{seed}")
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_forward_dynamics_welds_fixed_joints_into_their_parents(seed):
+    """dca.welded (docs/design.md, "Welds"): a body on a fixed joint below another
+    body is welded into it for forward_dynamics' DCA: the welded model has the
+    same dofs and M (reference CRBA), its accelerations under joint forces and
+    external wrenches on every body (gathered onto the hosts) equal the
+    reference ABA's within 100 cond(M) eps, and those of the DCA on the model's
+    own tree."""
+    model = welded_chain(seed)
+    welds = dca.welded(model)
+    assert welds.model.nb == model.nb - 2 and welds.model.nv == model.nv
+    assert welds.host.tolist() == list(range(model.nb - 3)) + [0, 0, model.nb - 3]
+    assert dca.welded(random_tree(seed, n=4)) is None
+    for s in range(3):
+        q, qd, tau, f_ext = random_state(model, seed + 10 * s)
+        np.testing.assert_allclose(reference.crba(welds.model, q), reference.crba(model, q),
+                                   rtol=0, atol=1e-13 * np.abs(reference.crba(model, q)).max())
+        qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+        tol = tolerance(model, q)
+        assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tol
+        own = vdad.forward_dynamics(model, q, qd, tau, f_ext,
+                                    tree=vdad.dynamics.default_tree(model))
+        assert relative_error(qdd, own) < tol
 
 
 @pytest.mark.parametrize("light", [2, 4])

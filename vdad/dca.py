@@ -36,7 +36,7 @@ internal nodes' slots come first) and no block of ``Phi``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -72,6 +72,7 @@ from .assembly import AssemblyTree
 from .checks import check_count, check_flag
 from .errors import InputError
 from .kinematics import Kinematics, joint_kinematics, kinematics_pass, plan, world_poses
+from .model import Model, Pose
 from .newton_euler import FULL, MASS, body_wrench, inverse_dynamics_pass
 
 
@@ -970,15 +971,112 @@ def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
 def dca_call(constants, q, qd, tau_in, f_ext):
     """:func:`dca_pass` with its constant arguments ``(js, tree, bodies, kin,
     work)`` from the :class:`~vdad._pack.Pack` ``constants`` (:func:`packed`): a
-    call from Python then converts five arguments instead of 81 (``vdad._pack``)."""
-    js, tree, bodies, kin, work = constants.data
-    return dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
+    call from Python then converts five arguments instead of 81 (``vdad._pack``).
+    Of a welded model (:func:`welded`; the pack's ``host``, ``lever`` and scratch
+    ``f_welded`` not empty), the external wrenches ``f_ext`` of the model's
+    bodies are gathered onto the welded bodies once their poses are known
+    (:func:`gather_wrenches`)."""
+    js, tree, bodies, kin, work, host, lever, f_welded = constants.data
+    if host.shape[0] == 0 or f_ext.shape[0] == 0:
+        return dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
+    kinematics_pass(js, q, qd, True, *kin)
+    gather_wrenches(host, lever, kin[5], f_ext, f_welded)
+    dynamics_pass(js, tree, bodies, q, qd, tau_in, f_welded, kin, work)
+    return finite(q) and finite(qd) and finite(tau_in) and finite(f_ext) and finite(work[7])
 
 
-def packed(model, data):
+@inlined
+def gather_wrenches(host, lever, R, f_ext, out):
+    """The external wrenches ``f_ext`` (nb, 6; torque about each body's centre of
+    mass, force; world axes) of a model's bodies as wrenches ``out`` (nh, 6) on
+    the bodies of its welded model (:func:`welded`): body ``b``'s on ``host[b]``,
+    its torque moved to the host's centre of mass, ``tau + d x f`` with ``d``
+    the lever ``lever[b]`` (3,; host axes) turned by the host's orientation ``R``
+    (nh, 3, 3)."""
+    for h in range(out.shape[0]):
+        for r in range(6):
+            out[h, r] = 0.0
+    for b in range(f_ext.shape[0]):
+        h, Rh, c = host[b], R[host[b]], lever[b]
+        d0 = Rh[0, 0] * c[0] + Rh[0, 1] * c[1] + Rh[0, 2] * c[2]
+        d1 = Rh[1, 0] * c[0] + Rh[1, 1] * c[1] + Rh[1, 2] * c[2]
+        d2 = Rh[2, 0] * c[0] + Rh[2, 1] * c[1] + Rh[2, 2] * c[2]
+        f0, f1, f2 = f_ext[b, 3], f_ext[b, 4], f_ext[b, 5]
+        out[h, 0] += f_ext[b, 0] + d1 * f2 - d2 * f1
+        out[h, 1] += f_ext[b, 1] + d2 * f0 - d0 * f2
+        out[h, 2] += f_ext[b, 2] + d0 * f1 - d1 * f0
+        out[h, 3] += f0
+        out[h, 4] += f1
+        out[h, 5] += f2
+
+
+class Welds(NamedTuple):
+    """A model whose bodies on fixed joints are welded into their parents
+    (:func:`welded`), and where each of the model's bodies went."""
+
+    model: object          # the welded Model: no fixed joint below a body
+    host: np.ndarray       # (nb,) the welded body that holds each body
+    lever: np.ndarray      # (nb, 3) each body's centre of mass from its host's, host axes
+
+
+@lru_cache(maxsize=64)
+def welded(model):
+    """``model`` with every body on a fixed joint below another body welded into
+    that body, as :class:`Welds` (None if it has no such joint): the host takes
+    the bodies' composite mass, centre of mass and inertia, and the joints below
+    a welded body hang from its host, placed through the weld. The dofs, their
+    order, the joints' springs and dampers are those of ``model``, so the DCA of
+    the welded model is ``model``'s forward dynamics, with fewer leaves and
+    no six-constraint merges (``docs/design.md``, "Welds"); the external wrenches
+    move by :func:`gather_wrenches`."""
+    fixed = [j for j in range(model.nb)
+             if model.joints[j].kind == "fixed" and model.parent[j] >= 0]
+    if not fixed:
+        return None
+    host, R, p = np.arange(model.nb), np.tile(np.eye(3), (model.nb, 1, 1)), np.zeros((model.nb, 3))
+    for j in fixed:                     # parents first: a chain of welds ends at its host
+        b = model.parent[j]
+        host[j] = host[b]
+        R[j] = R[b] @ model.placement_R[j]
+        p[j] = R[b] @ model.placement_p[j] + p[b]
+    com = np.einsum("bij,bj->bi", R, model.com) + p                   # host axes
+    hosts = np.unique(host)
+    mass = np.zeros(model.nb)
+    np.add.at(mass, host, model.mass)
+    centre = np.zeros((model.nb, 3))
+    np.add.at(centre, host, model.mass[:, None] * com)
+    centre[hosts] /= mass[hosts, None]
+    lever = com - centre[host]
+    inertia = np.zeros((model.nb, 3, 3))
+    turned = np.einsum("bij,bjk,blk->bil", R, model.inertia, R)
+    np.add.at(inertia, host, turned + model.mass[:, None, None] * (
+        np.einsum("bi,bi->b", lever, lever)[:, None, None] * np.eye(3)
+        - np.einsum("bi,bj->bij", lever, lever)))
+    bodies = [replace(model.bodies[h], mass=float(mass[h]), com=tuple(centre[h].tolist()),
+                      inertia=0.5 * (inertia[h] + inertia[h].T)) for h in hosts]
+    joints = []
+    for j in hosts:
+        jt, b = model.joints[j], model.parent[j]
+        if b >= 0 and host[b] != b:                     # hangs from a welded body
+            jt = replace(jt, parent=model.body_names[host[b]], placement=Pose(
+                tuple((R[b] @ model.placement_p[j] + p[b]).tolist()),
+                R[b] @ model.placement_R[j]))
+        joints.append(jt)
+    welds = Model(bodies, joints, gravity=model.gravity, q_spring=model.q_spring,
+                  name=model.name)
+    index = np.zeros(model.nb, int)
+    index[hosts] = np.arange(len(hosts))
+    return Welds(welds, index[host], lever)
+
+
+def packed(model, data, welds=None):
     """The constant arguments of :func:`dca_pass` on ``model`` into ``data`` (a
-    :class:`DCAData` of a tree of ``model``), packed once for :func:`dca_call`."""
+    :class:`DCAData` of a tree of ``model``), packed once for :func:`dca_call`;
+    with ``welds`` (:func:`welded`, whose ``model`` is then ``model``), what
+    :func:`gather_wrenches` needs."""
     if data.packed is None:
+        weld = ((np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 6))) if welds is None
+                else (welds.host, welds.lever, np.zeros((model.nb, 6))))
         data.packed = pack((plan(model).arrays, data.layout, body_arrays(model),
-                            data.kin.arrays, data.arrays))
+                            data.kin.arrays, data.arrays, *weld))
     return data.packed

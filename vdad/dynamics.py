@@ -72,6 +72,18 @@ def _work(tree) -> dca.DCAData:
     return dca.make_data(tree)
 
 
+@lru_cache(maxsize=64)
+def _default_call(model) -> tuple:
+    """The packed DCA (:func:`~vdad.dca.packed`) and work arrays that
+    :func:`forward_dynamics` uses without a tree: of the welded model
+    (:func:`~vdad.dca.welded`) where ``model`` has fixed joints below a body,
+    else of ``model``, on the balanced tree."""
+    welds = dca.welded(model)
+    dca_model = model if welds is None else welds.model
+    data = _work(default_tree(dca_model))
+    return dca.packed(dca_model, data, welds), data
+
+
 def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     """Joint accelerations ``qdd`` (nv,) by the DCA (theory §4-5).
 
@@ -79,22 +91,28 @@ def forward_dynamics(model, q, qd, tau=None, f_ext=None, tree=None, data=None):
     the joint springs and dampers; f_ext (nb, 6): external wrench per body,
     (torque about its centre of mass; force) in world axes; tree: an
     :class:`~vdad.assembly.AssemblyTree` (default: balanced); data: reusable
-    :class:`~vdad.dca.DCAData` work arrays of that tree.
+    :class:`~vdad.dca.DCAData` work arrays of that tree. Without either, a model
+    with fixed joints below a body runs on its welded model
+    (:func:`~vdad.dca.welded`).
     """
     check_model(model)
-    tree = default_tree(model) if tree is None else check_tree(model, tree)
-    data = _work(tree) if data is None else dca.check_data(tree, data)
+    if tree is None and data is None:
+        constants, data = _default_call(model)
+    else:
+        tree = default_tree(model) if tree is None else check_tree(model, tree)
+        data = _work(tree) if data is None else dca.check_data(tree, data)
+        constants = dca.packed(model, data)
     if (_as_given(q, (model.nq,)) and _as_given(qd, (model.nv,))
             and (tau is None or _as_given(tau, (model.nv,)))
             and (f_ext is None or _as_given(f_ext, (model.nb, 6)))
-            and _call(model, q, qd, tau, f_ext, data)):
+            and _call(constants, q, qd, tau, f_ext)):
         return data.qdd.copy()          # float arrays as the kernels take them, all finite
     q = check_configuration(model, "q", q)
     qd = check_vector("qd", qd, model.nv)
     tau = check_vector("tau", tau, model.nv, allow_none=True)
     f_ext = check_wrenches(model, f_ext)
-    return check_overflow(model, forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data),
-                          q, qd=qd, tau=tau, f_ext=f_ext)
+    _evaluate(constants, q, qd, tau, f_ext)
+    return check_overflow(model, data.qdd.copy(), q, qd=qd, tau=tau, f_ext=f_ext)
 
 
 def inverse_dynamics(model, q, qd, qdd, f_ext=None):
@@ -150,22 +168,23 @@ def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
     """:func:`forward_dynamics` of inputs already checked (q (nq,) and qd (nv,)
     finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``tree`` of
     ``model`` and its ``data``): what a simulator calls every step."""
-    _evaluate(model, q, qd, tau, f_ext, data)
+    _evaluate(dca.packed(model, data), q, qd, tau, f_ext)
     return data.qdd.copy()
 
 
-def _evaluate(model, q, qd, tau, f_ext, data):
+def _evaluate(constants, q, qd, tau, f_ext):
     """:func:`_call` of any float arrays (made the kernels' type,
     :func:`~vdad._linalg.as_input`)."""
-    return _call(model, as_input(q), as_input(qd), None if tau is None else as_input(tau),
-                 None if f_ext is None else as_input(f_ext), data)
+    return _call(constants, as_input(q), as_input(qd), None if tau is None else as_input(tau),
+                 None if f_ext is None else as_input(f_ext))
 
 
-def _call(model, q, qd, tau, f_ext, data):
-    """:func:`~vdad.dca.dca_pass` into ``data`` (by :func:`~vdad.dca.dca_call`) of
-    arrays of the kernels' type; whether the inputs and ``qdd`` are all finite."""
+def _call(constants, q, qd, tau, f_ext):
+    """:func:`~vdad.dca.dca_call` of the packed DCA ``constants``
+    (:func:`~vdad.dca.packed`), into its work arrays, on arrays of the kernels'
+    type; whether the inputs and ``qdd`` are all finite."""
     with compiling(dca.dca_call):
-        return dca.dca_call(dca.packed(model, data), q, qd, _NO_TAU if tau is None else tau,
+        return dca.dca_call(constants, q, qd, _NO_TAU if tau is None else tau,
                             _NO_WRENCH if f_ext is None else f_ext)
 
 
