@@ -50,6 +50,12 @@ from .projection import box_scratch, view_of
 
 ESTIMATES = ("min", "node", "bodies")
 MIN, NODE, BODIES = 0, 1, 2                      # codes of ESTIMATES for the kernels
+
+#: eq. 7 skips a node's area where its bodies' total is below ``1 - SKIP_MARGIN``
+#: of its children's areas: above the relative error of the areas of spheres cut
+#: by the near plane (1e-5, sampled), so that ``N_M`` is what it would be
+#: computed (``docs/visibility.md``, "Areas that eq. 7 skips")
+SKIP_MARGIN = 1e-4
 PIXELS = ("own", "moved")                        # whose pixels weight a node's joints
 
 
@@ -114,7 +120,11 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
     world poses ``R``, ``p``, their areas; bottom-up, each internal node's volume
     merged from its children's into ``world`` (n_nodes + 1 slots, the last an
     empty ground) and its area ``N1``, and its bodies' total (``N``, then
-    combined). Camera: world pose ``Rc``, ``pc``, intrinsics ``view``."""
+    combined). Camera: world pose ``Rc``, ``pc``, intrinsics ``view``. Under
+    eq. 7 a node's area is not computed where its bodies' total is below its
+    children's areas (``docs/visibility.md``, "Areas that eq. 7 skips"): its
+    volume holds theirs, so its area is at least the larger, and ``N_M`` is the
+    total; ``N1`` keeps that bound."""
     bc, bR, bh = body
     c, Rv, h = world
     n_nodes = nb + left.shape[0]
@@ -130,6 +140,10 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
             if estimate == BODIES:
                 continue
             merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
+            bound = max(N1[A], N1[B])
+            if estimate == MIN and N[n] < (1.0 - SKIP_MARGIN) * bound:
+                N1[n] = bound
+                continue
         N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
         if n < nb:
             N[n] = N1[n]
