@@ -215,8 +215,7 @@ def warn_if_plain_is_inexact(model, stacklevel):
         warnings.warn(f"adaptive dynamics of model {model.name!r} assembles its bodies' own "
                       f"inverse inertias, without the refinement that forward_dynamics gives "
                       f"thin and light bodies ({names_text(thin)}; docs/accuracy.md): with "
-                      f"every joint "
-                      f"active its accelerations differ from forward_dynamics' by "
+                      f"every joint active its accelerations differ from forward_dynamics' by "
                       f"{error:.1e} of the largest (at q_neutral); use method='dca' where "
                       f"that matters", UserWarning, stacklevel=stacklevel)
 

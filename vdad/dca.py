@@ -238,9 +238,8 @@ def leaf_inertias(model) -> Leaves:
     moments, axes = np.linalg.eigh(model.inertia)
     scale = np.maximum(moments[:, -1], model.mass * lever ** 2)
     thin = moments[:, 0] < LEAF_FLOOR * scale
-    k = np.maximum(1.0, LEAF_RAISE * neighbour / model.mass)            # the light raise
     heavy = model.mass < LIGHT_RAISE * neighbour
-    k[~heavy] = 1.0
+    k = np.where(heavy, LEAF_RAISE * neighbour / model.mass, 1.0)     # the light raise
     leaf = np.maximum(moments, LEAF_RAISE * scale[:, None])
     Iinv = np.einsum("bij,bj,bkj->bik", axes, 1.0 / leaf, axes)
     Iinv[~thin] = np.linalg.inv(model.inertia[~thin])
@@ -310,16 +309,19 @@ def body_arrays(model) -> tuple:
     body is light); and the leaves' masses (nb,)."""
     js = plan(model)
     leaves = leaf_inertias(model)
-    refined = leaves.raised & ~leaves.paid & (leaves.mass == model.mass)
+    heavy = leaves.mass != model.mass              # light bodies raised: M' - M spreads wider
+    refined = leaves.raised & ~leaves.paid & ~heavy
     axes = spin_axes(model) if refined.any() else None
     if axes is not None:               # planar: refine where a raise meets the spin axis
         dI = np.linalg.inv(leaves.Iinv[refined]) - model.inertia[refined]
         turned = np.abs(np.einsum("bij,bj->bi", dI, axes[refined])).max(axis=1)
         refined[refined] = turned > 1e-9 * np.abs(dI).max(axis=(1, 2))
-    heavy = leaves.mass != model.mass              # light bodies raised: M' - M spreads wider
-    refined |= heavy                                        # the raises that change M
-    refine = (MAX_REFINE if heavy.any() else min(2 * int(refined.sum()) + 4, MAX_REFINE)
-              if refined.any() else ONE_STEP if (leaves.paid | leaves.light).any() else 0)
+    if heavy.any():                                         # the raises that change M
+        refine = MAX_REFINE
+    elif refined.any():
+        refine = min(2 * int(refined.sum()) + 4, MAX_REFINE)
+    else:
+        refine = ONE_STEP if (leaves.paid | leaves.light).any() else 0
     return (model.mass, model.com, model.inertia, leaves.Iinv, model.gravity, js.stage_kind,
             js.stage_q, js.stage_v, js.stage_stiffness, js.q_spring, js.damping, js.armature,
             refine, leaves.mass)
@@ -963,8 +965,15 @@ def dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     :func:`dynamics_pass`. Returns whether the inputs and ``qdd`` are all finite
     (the callers' checks, at no cost)."""
     kinematics_pass(js, q, qd, True, *kin)
+    return dynamics_checked(js, tree, bodies, q, qd, tau_in, f_ext, kin, work, f_ext)
+
+
+@inlined
+def dynamics_checked(js, tree, bodies, q, qd, tau_in, f_ext, kin, work, given):
+    """:func:`dynamics_pass`; whether ``q``, ``qd``, ``tau_in``, the wrenches
+    ``given`` by the caller and ``qdd`` are all finite."""
     dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
-    return finite(q) and finite(qd) and finite(tau_in) and finite(f_ext) and finite(work[7])
+    return finite(q) and finite(qd) and finite(tau_in) and finite(given) and finite(work[7])
 
 
 @kernel
@@ -981,8 +990,7 @@ def dca_call(constants, q, qd, tau_in, f_ext):
         return dca_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work)
     kinematics_pass(js, q, qd, True, *kin)
     gather_wrenches(host, lever, kin[5], f_ext, f_welded)
-    dynamics_pass(js, tree, bodies, q, qd, tau_in, f_welded, kin, work)
-    return finite(q) and finite(qd) and finite(tau_in) and finite(f_ext) and finite(work[7])
+    return dynamics_checked(js, tree, bodies, q, qd, tau_in, f_welded, kin, work, f_ext)
 
 
 @inlined

@@ -164,10 +164,10 @@ def check_overflow(model, qdd, q, **inputs):
                      f"at joint {model.joint_names[bad]!r}); the inputs are too large: {sizes}")
 
 
-def forward_dynamics_unchecked(model, q, qd, tau, f_ext, tree, data):
+def forward_dynamics_unchecked(model, q, qd, tau, f_ext, data):
     """:func:`forward_dynamics` of inputs already checked (q (nq,) and qd (nv,)
-    finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``tree`` of
-    ``model`` and its ``data``): what a simulator calls every step."""
+    finite floats, tau (nv,) or None, f_ext (nb, 6) or None, ``data`` of a tree
+    of ``model``): what a simulator calls every step."""
     _evaluate(dca.packed(model, data), q, qd, tau, f_ext)
     return data.qdd.copy()
 

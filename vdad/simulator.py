@@ -327,7 +327,7 @@ class Simulator:
             "controller(t, q, qd)", self.controller(t, q, qd), self.model.nv)
         f_ext = None if self.external is None else check_wrenches(
             self.model, self.external(t, q, qd), "external(t, q, qd)")
-        return forward_dynamics_unchecked(self.model, q, qd, tau, f_ext, self.tree, self.data)
+        return forward_dynamics_unchecked(self.model, q, qd, tau, f_ext, self.data)
 
     def step(self, n=1):
         """Advance ``n`` steps (a whole number >= 0); returns ``self``. With

@@ -140,10 +140,11 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
             if estimate == BODIES:
                 continue
             merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
-            bound = max(N1[A], N1[B])
-            if estimate == MIN and N[n] < (1.0 - SKIP_MARGIN) * bound:
-                N1[n] = bound
-                continue
+            if estimate == MIN:
+                bound = max(N1[A], N1[B])
+                if N[n] < (1.0 - SKIP_MARGIN) * bound:
+                    N1[n] = bound
+                    continue
         N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
         if n < nb:
             N[n] = N1[n]
