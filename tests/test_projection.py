@@ -7,7 +7,17 @@ from raycast import box_pixels, sphere_pixels
 from strategies import random_rotation
 
 from vdad.camera import Camera
-from vdad.projection import box_areas, clip_polygon, polygon_area, sphere_areas
+from vdad.projection import (
+    CORNERS,
+    box_areas,
+    clip_polygon,
+    convex_hull,
+    polygon_area,
+    project,
+    sphere_areas,
+    view_of,
+    viewport_area,
+)
 
 CAM = Camera(width=320, height=240)          # f = 207.8 px; half-width 2.31 m at 3 m
 # (name, centre in camera coordinates, radius): the cases of theory §7
@@ -73,6 +83,35 @@ def test_box_area_equals_pixel_count(name, c, h, seed):
     pixels = box_pixels(CAM, c, R, h)
     assert pixels > 1000
     assert abs(area - pixels) <= 0.01 * pixels, (name, area, pixels)
+
+
+@pytest.mark.parametrize("spread", [0.3, 2.5], ids=["in view", "across the edges"])
+def test_box_in_front_equals_hull_of_its_corners(spread):
+    """A box wholly in front of the near plane, summed over its front faces,
+    equals the convex hull of its eight projected corners (clipped by the
+    viewport), to rounding: in view, at the viewport's edges and with the camera
+    inside one or two of the box's slabs."""
+    rng = np.random.default_rng(7)
+    k = 300
+    c = np.column_stack([rng.uniform(-spread, spread, (k, 2)), -rng.uniform(2.5, 6.0, k)])
+    c[:40, :2] = 0.0                                   # the camera in two slabs (axis-aligned)
+    c[40:80, 0] = 0.0                                  # and in one
+    R = np.stack([random_rotation(rng) for _ in range(k)])
+    R[:80] = np.eye(3)
+    h = rng.uniform(0.05, 0.8, (k, 3))
+    view = view_of(CAM)
+    hulls, clipped = np.empty(k), 0
+    for i in range(k):
+        X = c[i] + (CORNERS * h[i]) @ R[i].T                              # (8, 3)
+        xy = np.array([project(view, *x) for x in X])
+        H = np.empty((13, 2))
+        m = convex_hull(xy, 8, H)
+        whole = polygon_area(H, m)
+        hulls[i] = viewport_area(view, H, m, np.empty((13, 2)))
+        clipped += 0 < hulls[i] < whole * (1 - 1e-9)
+    areas = box_areas(CAM, c, R, h)
+    assert np.sum(hulls > 0) > k // 2 and (clipped > k // 4 if spread > 1 else clipped == 0)
+    np.testing.assert_allclose(areas, hulls, rtol=1e-10, atol=1e-8)
 
 
 def test_box_behind_or_empty_covers_nothing():

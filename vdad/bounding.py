@@ -30,7 +30,7 @@ import numpy as np
 
 from ._linalg import as_input, inlined, pass_kernel
 from .errors import InputError, VdadError
-from .projection import box_area, box_scratch, sphere_area, view_of
+from .projection import box_area, box_scratch, camera_vector, sphere_area, view_of
 
 VOLUMES = ("sphere", "obb", "aabb")
 
@@ -181,9 +181,10 @@ def place_volume(kind, c, R, h, Rw, pw, oc, oR, oh):
     if kind == SPHERE:
         oh[0] = h[0]
         return
-    for a in range(3):
-        for b in range(3):
-            oR[a, b] = Rw[a, 0] * R[0, b] + Rw[a, 1] * R[1, b] + Rw[a, 2] * R[2, b]
+    for b in range(3):
+        r0, r1, r2 = R[0, b], R[1, b], R[2, b]     # read before writing: oR may alias
+        for a in range(3):
+            oR[a, b] = Rw[a, 0] * r0 + Rw[a, 1] * r1 + Rw[a, 2] * r2
     if kind == AABB and h[0] >= 0:
         for a in range(3):
             oh[a] = abs(oR[a, 0]) * h[0] + abs(oR[a, 1]) * h[1] + abs(oR[a, 2]) * h[2]
@@ -235,35 +236,39 @@ def merge_volumes(kind, ca, Ra, ha, cb, Rb, hb, oc, oR, oh):
             oc[a] = ca[a] + t * (cb[a] - ca[a])
         oh[0] = r
         return
-    for a in range(3):           # b's centre and reach along a's axis a: mid into oc, half oh
-        cba = ((cb[0] - ca[0]) * Ra[0, a] + (cb[1] - ca[1]) * Ra[1, a]
-               + (cb[2] - ca[2]) * Ra[2, a])
-        reach = 0.0
-        for e in range(3):
-            reach += abs(Ra[0, a] * Rb[0, e] + Ra[1, a] * Rb[1, e] + Ra[2, a] * Rb[2, e]) * hb[e]
-        lo, hi = min(-ha[a], cba - reach), max(ha[a], cba + reach)
-        oc[a], oh[a] = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    m0, m1, m2 = oc[0], oc[1], oc[2]
+    m0, e0 = merged_extent(ca, Ra, ha, cb, Rb, hb, 0)
+    m1, e1 = merged_extent(ca, Ra, ha, cb, Rb, hb, 1)
+    m2, e2 = merged_extent(ca, Ra, ha, cb, Rb, hb, 2)
     for a in range(3):
         oc[a] = ca[a] + Ra[a, 0] * m0 + Ra[a, 1] * m1 + Ra[a, 2] * m2
         for e in range(3):
             oR[a, e] = Ra[a, e]
+    oh[0], oh[1], oh[2] = e0, e1, e2
 
 
 @inlined
-def volume_area(kind, view, Rc, pc, c, R, h, cc, Rcam, scratch):
+def merged_extent(ca, Ra, ha, cb, Rb, hb, a):
+    """Along box ``a``'s axis ``a``: the middle (from ``a``'s centre) and the
+    half-length of the interval that holds both boxes' extents (``b``'s centre
+    and reach along the axis)."""
+    cba = ((cb[0] - ca[0]) * Ra[0, a] + (cb[1] - ca[1]) * Ra[1, a]
+           + (cb[2] - ca[2]) * Ra[2, a])
+    reach = 0.0
+    for e in range(3):
+        reach += abs(Ra[0, a] * Rb[0, e] + Ra[1, a] * Rb[1, e] + Ra[2, a] * Rb[2, e]) * hb[e]
+    lo, hi = min(-ha[a], cba - reach), max(ha[a], cba + reach)
+    return 0.5 * (lo + hi), 0.5 * (hi - lo)
+
+
+@inlined
+def volume_area(kind, view, Rc, pc, c, R, h, scratch):
     """Projected area in pixels of the world volume ``(c, R, h)`` under the camera
     of world pose ``(Rc, pc)`` and intrinsics ``view`` (:mod:`vdad.projection`);
-    ``cc`` (3,), ``Rcam`` (3, 3) and ``scratch`` (:func:`projection.box_scratch`):
-    work arrays."""
-    for a in range(3):
-        cc[a] = Rc[0, a] * (c[0] - pc[0]) + Rc[1, a] * (c[1] - pc[1]) + Rc[2, a] * (c[2] - pc[2])
+    ``scratch``: :func:`projection.box_scratch`."""
     if kind == SPHERE:
-        return sphere_area(view, cc[0], cc[1], cc[2], h[0])
-    for a in range(3):
-        for b in range(3):
-            Rcam[a, b] = Rc[0, a] * R[0, b] + Rc[1, a] * R[1, b] + Rc[2, a] * R[2, b]
-    return box_area(view, cc, Rcam, h, scratch[0], scratch[1], scratch[2], scratch[3])
+        x, y, z = camera_vector(Rc, c[0] - pc[0], c[1] - pc[1], c[2] - pc[2])
+        return sphere_area(view, x, y, z, h[0])
+    return box_area(view, Rc, pc, c, R, h, scratch[0], scratch[1], scratch[2], scratch[3])
 
 
 @pass_kernel
@@ -279,9 +284,9 @@ def merge_pass(kind, ca, Ra, ha, cb, Rb, hb, oc, oR, oh):
 
 
 @pass_kernel
-def areas_pass(kind, view, Rc, pc, c, R, h, out, cc, Rcam, scratch):
+def areas_pass(kind, view, Rc, pc, c, R, h, out, scratch):
     for i in range(c.shape[0]):
-        out[i] = volume_area(kind, view, Rc, pc, c[i], R[i], h[i], cc, Rcam, scratch)
+        out[i] = volume_area(kind, view, Rc, pc, c[i], R[i], h[i], scratch)
 
 
 def _empty_like_packed(k):
@@ -316,6 +321,5 @@ def areas(v, camera, camera_frame=False):
     with ``camera_frame``, ``v`` is given in the camera's coordinates."""
     out = np.zeros(len(v))
     pose = (np.eye(3), np.zeros(3)) if camera_frame else camera_pose(camera)
-    areas_pass(KIND_CODE[v.kind], view_of(camera), *pose, *pack(v), out, np.empty(3),
-               np.empty((3, 3)), box_scratch())
+    areas_pass(KIND_CODE[v.kind], view_of(camera), *pose, *pack(v), out, box_scratch())
     return out

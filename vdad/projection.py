@@ -5,11 +5,13 @@ ray meets ``K`` beyond the near plane, inside the viewport: what a rasteriser
 covers when it draws ``K``'s surface clipped by the near plane, without back-face
 culling (``docs/visibility.md`` derives the cases):
 
-* a box: its *back* faces (outward normal pointing away from the eye), clipped by
-  the near plane ``d >= znear``, projected and clipped by the viewport; every
-  ray through the clipped box leaves it through exactly one back face beyond the
-  near plane, so their areas add up exactly, whether the box is in front, cut by
-  the near plane or around the camera;
+* a box cut by the near plane ``d >= znear`` or around the camera: its *back*
+  faces (outward normal pointing away from the eye), clipped by the near plane,
+  projected and clipped by the viewport; every ray through the clipped box
+  leaves it through exactly one back face beyond the near plane, so their areas
+  add up exactly; a box wholly in front: its *front* faces (at most three),
+  projected and clipped by the viewport, as every ray through it enters it
+  through exactly one;
 * a sphere in front of the near plane: its silhouette ellipse, intersected
   exactly with the viewport (the ellipse mapped to the unit disk, the viewport to
   a parallelogram, the disk-polygon area summed over the polygon's edges);
@@ -100,7 +102,8 @@ def viewport_area(view, P, m, Q):
 @inlined
 def project(view, x, y, z):
     """Pixel (u, v) of the camera-frame point (x, y, z) in front of the camera."""
-    return view[0] * x / -z + 0.5 * view[1], view[0] * y / -z + 0.5 * view[2]
+    w = view[0] / -z
+    return x * w + 0.5 * view[1], y * w + 0.5 * view[2]
 
 
 # --- spheres -------------------------------------------------------------------------------
@@ -254,47 +257,79 @@ def sphere_area(view, x, y, z, r):
 # --- boxes ---------------------------------------------------------------------------------
 
 @inlined
-def box_area(view, c, R, h, corners, xy, P, Q):
-    """Projected area in pixels of the box of camera-frame centre ``c`` (3,), axes
-    ``R`` (3, 3) (columns) and half-extents ``h`` (3,) (any negative: empty, 0):
-    the sum over its back faces, clipped by the near plane and the viewport.
-    ``corners`` (8, 3), ``xy`` (8, 2), ``P``, ``Q`` (:data:`MAX_VERTICES`, 3):
-    scratch."""
-    if h[0] < 0 or h[1] < 0 or h[2] < 0:
+def camera_vector(Rc, x, y, z):
+    """The world vector (x, y, z) in the frame of a camera of world rotation ``Rc``
+    (3, 3): ``Rc^T (x, y, z)``, as three scalars."""
+    return (Rc[0, 0] * x + Rc[1, 0] * y + Rc[2, 0] * z, Rc[0, 1] * x + Rc[1, 1] * y + Rc[2, 1] * z,
+            Rc[0, 2] * x + Rc[1, 2] * y + Rc[2, 2] * z)
+
+
+@inlined
+def box_area(view, Rc, pc, c, R, h, corners, xy, P, Q):
+    """Projected area in pixels of the box of world centre ``c`` (3,), axes ``R``
+    (3, 3) (columns) and half-extents ``h`` (3,) (any negative: empty, 0) under
+    the camera of world pose ``Rc``, ``pc``. A box wholly in front of the near
+    plane: the sum over its front faces (at most one per axis, the camera
+    outside that axis's slab), each projected quad clipped by the viewport
+    (inside it: half the cross product of its diagonals); a box cut by the near
+    plane: the sum over its back faces, clipped by the near plane and the
+    viewport. ``corners`` (8, 3), ``xy`` (8, 2), ``P``, ``Q``
+    (:data:`MAX_VERTICES`, 3): scratch."""
+    H = (h[0], h[1], h[2])
+    if H[0] < 0 or H[1] < 0 or H[2] < 0:
         return 0.0
     n = view[3]
+    # in the camera frame, in registers (the scratch written below may alias the
+    # inputs): the centre, the axes, the scaled axes h_b R[:, b] and the centre's
+    # offset along each axis, D
+    cx, cy, cz = camera_vector(Rc, c[0] - pc[0], c[1] - pc[1], c[2] - pc[2])
+    ax, ay, az = camera_vector(Rc, R[0, 0], R[1, 0], R[2, 0])
+    bx, by, bz = camera_vector(Rc, R[0, 1], R[1, 1], R[2, 1])
+    ex, ey, ez = camera_vector(Rc, R[0, 2], R[1, 2], R[2, 2])
+    D = (cx * ax + cy * ay + cz * az, cx * bx + cy * by + cz * bz, cx * ex + cy * ey + cz * ez)
+    ax, ay, az = H[0] * ax, H[0] * ay, H[0] * az
+    bx, by, bz = H[1] * bx, H[1] * by, H[1] * bz
+    ex, ey, ez = H[2] * ex, H[2] * ey, H[2] * ez
     front = behind = True
-    for i in range(8):
-        for a in range(3):
-            corners[i, a] = c[a]
-            for b in range(3):
-                corners[i, a] += CORNERS[i, b] * h[b] * R[a, b]
-        depth = -corners[i, 2]
-        front = front and depth >= n
-        behind = behind and depth < n
+    lo_u = lo_v = np.inf
+    hi_u = hi_v = -np.inf
+    for i in range(8):           # each corner, and its pixel where all lie in front
+        s0, s1, s2 = CORNERS[i, 0], CORNERS[i, 1], CORNERS[i, 2]
+        x = cx + s0 * ax + s1 * bx + s2 * ex
+        y = cy + s0 * ay + s1 * by + s2 * ey
+        z = cz + s0 * az + s1 * bz + s2 * ez
+        corners[i, 0], corners[i, 1], corners[i, 2] = x, y, z
+        front = front and -z >= n
+        behind = behind and -z < n
+        if front:
+            u, v = project(view, x, y, z)
+            xy[i, 0], xy[i, 1] = u, v
+            lo_u, hi_u = min(lo_u, u), max(hi_u, u)
+            lo_v, hi_v = min(lo_v, v), max(hi_v, v)
     if behind:
         return 0.0
-    inside = front
+    area = 0.0
     if front:
-        lo_u = lo_v = np.inf
-        hi_u = hi_v = -np.inf
-        for i in range(8):
-            xy[i, 0], xy[i, 1] = project(view, corners[i, 0], corners[i, 1], corners[i, 2])
-            lo_u, hi_u = min(lo_u, xy[i, 0]), max(hi_u, xy[i, 0])
-            lo_v, hi_v = min(lo_v, xy[i, 1]), max(hi_v, xy[i, 1])
         if hi_u <= 0 or hi_v <= 0 or lo_u >= view[1] or lo_v >= view[2]:
             return 0.0
         inside = lo_u >= 0 and lo_v >= 0 and hi_u <= view[1] and hi_v <= view[2]
-    area = 0.0
+        for a in range(3):
+            if abs(D[a]) <= H[a]:
+                continue                     # the camera in the slab: both faces edge-on or away
+            face = 2 * a + 1 if D[a] < 0 else 2 * a
+            if inside:                       # half the cross product of the quad's diagonals
+                i, j, k, m = FACES[face, 0], FACES[face, 1], FACES[face, 2], FACES[face, 3]
+                area += 0.5 * abs((xy[k, 0] - xy[i, 0]) * (xy[m, 1] - xy[j, 1])
+                                  - (xy[k, 1] - xy[i, 1]) * (xy[m, 0] - xy[j, 0]))
+                continue
+            for v in range(4):
+                P[v, 0], P[v, 1] = xy[FACES[face, v], 0], xy[FACES[face, v], 1]
+            area += viewport_area(view, P[:, :2], 4, Q[:, :2])
+        return area
     for f in range(6):
         a, sign = f // 2, 2.0 * (f % 2) - 1.0
         # back face: its centre c + sign h_a R[:, a] seen along its normal sign R[:, a]
-        if sign * (c[0] * R[0, a] + c[1] * R[1, a] + c[2] * R[2, a]) + h[a] <= 0:
-            continue
-        if inside:                                   # no clipping: the projected quad
-            for v in range(4):
-                P[v, 0], P[v, 1] = xy[FACES[f, v], 0], xy[FACES[f, v], 1]
-            area += polygon_area(P, 4)
+        if sign * D[a] + H[a] <= 0:
             continue
         for v in range(4):
             for b in range(3):

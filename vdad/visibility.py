@@ -114,7 +114,7 @@ def combine(estimate, N1, N2):
 
 @pass_kernel
 def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
-                  cc, Rcam, scratch):
+                  scratch):
     """``N_M`` of every node (Kim 2008 §5.3, eqs. 5-7) into ``N`` (n_nodes + 1,):
     the bodies' volumes ``body`` (packed ``c, R, h``, body frames) placed at their
     world poses ``R``, ``p``, their areas; bottom-up, each internal node's volume
@@ -124,7 +124,7 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
     eq. 7 a node's area is not computed where its bodies' total is below its
     children's areas (``docs/visibility.md``, "Areas that eq. 7 skips"): its
     volume holds theirs, so its area is at least the larger, and ``N_M`` is the
-    total; ``N1`` keeps that bound."""
+    total; ``N1`` keeps that bound. ``scratch``: :func:`~vdad.projection.box_scratch`."""
     bc, bR, bh = body
     c, Rv, h = world
     n_nodes = nb + left.shape[0]
@@ -145,7 +145,7 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
                 if N[n] < (1.0 - SKIP_MARGIN) * bound:
                     N1[n] = bound
                     continue
-        N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
+        N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], scratch)
         if n < nb:
             N[n] = N1[n]
     for n in range(n_nodes):
@@ -157,11 +157,10 @@ def cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
     """Kim 2008 §5.3, eqs. 5-7, of the whole tree from the bodies' world poses
     ``R``, ``p`` into ``N`` (n_nodes + 1,): :func:`coverage_pass`, then, under the
     moved-pixels rule, :func:`moved_pass` (``moved`` its arrays). ``codes`` (3,):
-    volume kind, estimate, moved rule (0/1); ``scratch`` = (cc, Rcam, box
-    scratch)."""
-    cc, Rcam, box = scratch
+    volume kind, estimate, moved rule (0/1); ``scratch`` = (a 3 x 3 work matrix,
+    :func:`~vdad.projection.box_scratch`)."""
     coverage_pass(codes[0], codes[1], view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
-                  cc, Rcam, box)
+                  scratch[1])
     if codes[2]:
         parent, root, floating, _, _, joint, sums = moved
         moved_pass(nb, parent, root, floating, left, right, joint, sums, N)
@@ -194,13 +193,13 @@ def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, R_top, 
     visit, n_visit, active, grounded, top, rel_R, rel_p = hybrid
     R, p = poses
     group_poses(nb, left, right, first, visit, n_visit, active, grounded, top, rel_R, rel_p,
-                R_top, p_top, R, p, scratch[1])
+                R_top, p_top, R, p, scratch[0])
     cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch)
 
 
 @pass_kernel
 def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, grounded, top, R, p,
-                         local, world, N, cc, Rcam, scratch):
+                         local, world, N, scratch):
     """``N_M`` by eq. 5 (the node's own volume) of the adaptive region's nodes
     (``front`` rigid groups and ``act`` active nodes, ascending) into ``N``;
     every other node NaN. Each front node's
@@ -228,7 +227,7 @@ def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, ground
             n = act[k - nf]
             A, B = child_slot(left[n - nb], n_nodes), child_slot(right[n - nb], n_nodes)
             merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
-        N[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], cc, Rcam, scratch)
+        N[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], scratch)
 
 
 @pass_kernel
@@ -273,7 +272,7 @@ def idle_loop_coverage(tree):
     once."""
     box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
     constants = (np.zeros(3, np.int64), np.zeros(1, np.int64), box[1:], box, box, np.zeros(1),
-                 moved_arrays(tree), (np.empty(3), np.empty((3, 3)), box_scratch()))
+                 moved_arrays(tree), (np.empty((3, 3)), box_scratch()))
     return _empty_like(constants), _frames([], [])
 
 
@@ -375,7 +374,7 @@ class BoundingVolumes(_Coverage):
         self.stamp = np.full(n + 1, np.nan)
         self._N1 = np.zeros(n + 1)
         self._poses = (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)))   # group_poses' out
-        self._scratch = (np.empty(3), np.empty((3, 3)), box_scratch())
+        self._scratch = (np.empty((3, 3)), box_scratch())
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
                                 pixels == "moved"], np.int64)
 
@@ -407,7 +406,7 @@ class BoundingVolumes(_Coverage):
         kin = adaptive.front_kinematics(q)
         region_coverage_pass(self._kind, view, Rc, pc, nb, self._left, self._right,
                              _ids(front), _ids(act), adaptive.groups.grounded, adaptive.top,
-                             kin.R, kin.p, self.local, self.world, N, *self._scratch)
+                             kin.R, kin.p, self.local, self.world, N, self._scratch[1])
         return N
 
     def loop_coverage(self, steps, times):
