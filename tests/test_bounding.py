@@ -92,6 +92,10 @@ def test_merge_holds_both_children(kind):
         d = np.linalg.norm(a.c - b.c, axis=1)
         expected = np.maximum(np.maximum(a.r, b.r), 0.5 * (d + a.r + b.r))
         np.testing.assert_allclose(m.r, expected, rtol=1e-12)
+    if kind == "aabb":                                   # the smallest world box
+        np.testing.assert_allclose(m.c - m.h, np.minimum(a.c - a.h, b.c - b.h), atol=1e-12)
+        np.testing.assert_allclose(m.c + m.h, np.maximum(a.c + a.h, b.c + b.h), atol=1e-12)
+        np.testing.assert_array_equal(m.R, np.eye(3)[None].repeat(300, 0))
     # an empty child leaves the other unchanged
     e = Volumes.empty(kind, 300)
     for x, y in ((merge(a, e), a), (merge(e, b), b)):

@@ -236,6 +236,13 @@ def merge_volumes(kind, ca, Ra, ha, cb, Rb, hb, oc, oR, oh):
             oc[a] = ca[a] + t * (cb[a] - ca[a])
         oh[0] = r
         return
+    if kind == AABB:                 # world axes: the interval holding both, per axis
+        for a in range(3):
+            lo, hi = min(ca[a] - ha[a], cb[a] - hb[a]), max(ca[a] + ha[a], cb[a] + hb[a])
+            oc[a], oh[a] = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            for e in range(3):
+                oR[a, e] = 1.0 if a == e else 0.0
+        return
     m0, e0 = merged_extent(ca, Ra, ha, cb, Rb, hb, 0)
     m1, e1 = merged_extent(ca, Ra, ha, cb, Rb, hb, 1)
     m2, e2 = merged_extent(ca, Ra, ha, cb, Rb, hb, 2)
