@@ -9,9 +9,11 @@ from strategies import random_rotation
 from vdad.camera import Camera
 from vdad.projection import (
     CORNERS,
+    FACES,
     box_areas,
     clip_polygon,
     convex_hull,
+    front_face_area,
     polygon_area,
     project,
     sphere_areas,
@@ -112,6 +114,33 @@ def test_box_in_front_equals_hull_of_its_corners(spread):
     areas = box_areas(CAM, c, R, h)
     assert np.sum(hulls > 0) > k // 2 and (clipped > k // 4 if spread > 1 else clipped == 0)
     np.testing.assert_allclose(areas, hulls, rtol=1e-10, atol=1e-8)
+
+
+def test_front_face_closed_form_equals_its_projected_quad():
+    """docs/visibility.md (V3): the closed-form area of a box's front face equals
+    the shoelace area of its four corners projected at unit focal length, for
+    random boxes in front of the eye (at the origin, looking down -z)."""
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(400):
+        c = np.array([*rng.uniform(-2, 2, 2), -rng.uniform(1.5, 6.0)])
+        R, h = random_rotation(rng), rng.uniform(0.05, 1.0, 3)
+        X = c + (CORNERS * h) @ R.T                                       # (8, 3)
+        if X[:, 2].max() > -0.05:
+            continue
+        D = c @ R                                  # the centre's offsets along the axes
+        t = -h * R[2]                              # depth changes along h_b R[:, b]
+        for a in range(3):
+            if abs(D[a]) <= h[a]:
+                continue
+            b, e = (a + 1) % 3, (a + 2) % 3
+            face = 2 * a + 1 if D[a] < 0 else 2 * a
+            xy = X[FACES[face]][:, :2] / -X[FACES[face]][:, 2:]               # (4, 2)
+            closed = front_face_area(D[a], h[a], h[b], h[e], -c[2] - np.sign(D[a]) * t[a],
+                                     t[b], t[e])
+            assert closed == pytest.approx(polygon_area(xy, 4), rel=1e-11)
+            checked += 1
+    assert checked > 500
 
 
 def test_box_behind_or_empty_covers_nothing():

@@ -172,29 +172,56 @@ def unpack(kind, c, R, h):
 
 
 @inlined
+def columns(R):
+    """The columns of the 3 x 3 matrix ``R`` as three 3-tuples, in registers: the
+    kernels below read every input before their first store, since numba cannot
+    tell that their outputs do not alias their inputs (each store would reload)."""
+    return ((R[0, 0], R[1, 0], R[2, 0]), (R[0, 1], R[1, 1], R[2, 1]),
+            (R[0, 2], R[1, 2], R[2, 2]))
+
+
+@inlined
+def dot3(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+@inlined
+def rows_dot(R, u):
+    """``R u`` for ``R`` given by its ``columns``, a 3-tuple."""
+    return (R[0][0] * u[0] + R[1][0] * u[1] + R[2][0] * u[2],
+            R[0][1] * u[0] + R[1][1] * u[1] + R[2][1] * u[2],
+            R[0][2] * u[0] + R[1][2] * u[1] + R[2][2] * u[2])
+
+
+@inlined
 def place_volume(kind, c, R, h, Rw, pw, oc, oR, oh):
     """A volume ``(c, R, h)`` given in a frame of world pose ``(Rw, pw)``, in world
     coordinates, into ``(oc, oR, oh)`` (an AABB: the world box enclosing the placed
     box; an empty volume stays empty; a sphere's ``R`` is neither read nor written)."""
-    for a in range(3):
-        oc[a] = pw[a] + Rw[a, 0] * c[0] + Rw[a, 1] * c[1] + Rw[a, 2] * c[2]
+    W = columns(Rw)
+    x = rows_dot(W, (c[0], c[1], c[2]))
+    H = (h[0], h[1], h[2])
     if kind == SPHERE:
-        oh[0] = h[0]
+        oc[0], oc[1], oc[2] = pw[0] + x[0], pw[1] + x[1], pw[2] + x[2]
+        oh[0] = H[0]
         return
-    for b in range(3):
-        r0, r1, r2 = R[0, b], R[1, b], R[2, b]     # read before writing: oR may alias
+    P = (pw[0], pw[1], pw[2])
+    B = columns(R)
+    A = (rows_dot(W, B[0]), rows_dot(W, B[1]), rows_dot(W, B[2]))  # columns of Rw R
+    oc[0], oc[1], oc[2] = P[0] + x[0], P[1] + x[1], P[2] + x[2]
+    if kind == OBB:
+        oh[0], oh[1], oh[2] = H[0], H[1], H[2]
+        for b in range(3):
+            oR[0, b], oR[1, b], oR[2, b] = A[b][0], A[b][1], A[b][2]
+        return
+    if H[0] >= 0:                    # AABB: the world box's half-extents
         for a in range(3):
-            oR[a, b] = Rw[a, 0] * r0 + Rw[a, 1] * r1 + Rw[a, 2] * r2
-    if kind == AABB and h[0] >= 0:
-        for a in range(3):
-            oh[a] = abs(oR[a, 0]) * h[0] + abs(oR[a, 1]) * h[1] + abs(oR[a, 2]) * h[2]
+            oh[a] = abs(A[0][a]) * H[0] + abs(A[1][a]) * H[1] + abs(A[2][a]) * H[2]
     else:
-        for a in range(3):
-            oh[a] = h[a]
-    if kind != OBB:
-        for a in range(3):
-            for b in range(3):
-                oR[a, b] = 1.0 if a == b else 0.0
+        oh[0], oh[1], oh[2] = H[0], H[1], H[2]
+    for a in range(3):
+        for b in range(3):
+            oR[a, b] = 1.0 if a == b else 0.0
 
 
 @inlined
@@ -237,33 +264,39 @@ def merge_volumes(kind, ca, Ra, ha, cb, Rb, hb, oc, oR, oh):
         oh[0] = r
         return
     if kind == AABB:                 # world axes: the interval holding both, per axis
+        lo = (min(ca[0] - ha[0], cb[0] - hb[0]), min(ca[1] - ha[1], cb[1] - hb[1]),
+              min(ca[2] - ha[2], cb[2] - hb[2]))
+        hi = (max(ca[0] + ha[0], cb[0] + hb[0]), max(ca[1] + ha[1], cb[1] + hb[1]),
+              max(ca[2] + ha[2], cb[2] + hb[2]))
         for a in range(3):
-            lo, hi = min(ca[a] - ha[a], cb[a] - hb[a]), max(ca[a] + ha[a], cb[a] + hb[a])
-            oc[a], oh[a] = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            oc[a], oh[a] = 0.5 * (lo[a] + hi[a]), 0.5 * (hi[a] - lo[a])
             for e in range(3):
                 oR[a, e] = 1.0 if a == e else 0.0
         return
-    m0, e0 = merged_extent(ca, Ra, ha, cb, Rb, hb, 0)
-    m1, e1 = merged_extent(ca, Ra, ha, cb, Rb, hb, 1)
-    m2, e2 = merged_extent(ca, Ra, ha, cb, Rb, hb, 2)
+    A, B = columns(Ra), columns(Rb)
+    d = (cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2])
+    hB = (hb[0], hb[1], hb[2])
+    m0, e0 = merged_extent(A[0], ha[0], d, B, hB)
+    m1, e1 = merged_extent(A[1], ha[1], d, B, hB)
+    m2, e2 = merged_extent(A[2], ha[2], d, B, hB)
+    C = (ca[0], ca[1], ca[2])
     for a in range(3):
-        oc[a] = ca[a] + Ra[a, 0] * m0 + Ra[a, 1] * m1 + Ra[a, 2] * m2
-        for e in range(3):
-            oR[a, e] = Ra[a, e]
+        oc[a] = C[a] + A[0][a] * m0 + A[1][a] * m1 + A[2][a] * m2
+    for e in range(3):
+        oR[0, e], oR[1, e], oR[2, e] = A[e][0], A[e][1], A[e][2]
     oh[0], oh[1], oh[2] = e0, e1, e2
 
 
 @inlined
-def merged_extent(ca, Ra, ha, cb, Rb, hb, a):
-    """Along box ``a``'s axis ``a``: the middle (from ``a``'s centre) and the
-    half-length of the interval that holds both boxes' extents (``b``'s centre
-    and reach along the axis)."""
-    cba = ((cb[0] - ca[0]) * Ra[0, a] + (cb[1] - ca[1]) * Ra[1, a]
-           + (cb[2] - ca[2]) * Ra[2, a])
-    reach = 0.0
-    for e in range(3):
-        reach += abs(Ra[0, a] * Rb[0, e] + Ra[1, a] * Rb[1, e] + Ra[2, a] * Rb[2, e]) * hb[e]
-    lo, hi = min(-ha[a], cba - reach), max(ha[a], cba + reach)
+def merged_extent(axis, ha, d, B, hb):
+    """Along box ``a``'s unit ``axis`` (half-length ``ha``): the middle (from
+    ``a``'s centre) and the half-length of the interval that holds both boxes'
+    extents (``b``'s centre at ``d`` from ``a``'s, its axes ``B`` (columns) and
+    half-extents ``hb``: its reach along the axis)."""
+    cba = dot3(d, axis)
+    reach = (abs(dot3(axis, B[0])) * hb[0] + abs(dot3(axis, B[1])) * hb[1]
+             + abs(dot3(axis, B[2])) * hb[2])
+    lo, hi = min(-ha, cba - reach), max(ha, cba + reach)
     return 0.5 * (lo + hi), 0.5 * (hi - lo)
 
 

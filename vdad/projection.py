@@ -265,24 +265,67 @@ def camera_vector(Rc, x, y, z):
 
 
 @inlined
+def front_face_area(Da, ha, hb, hc, t, tb, tc):
+    """``docs/visibility.md`` (V3): the projected area, on the image plane at unit
+    focal length, of the front face of a box along axis ``a`` (the eye outside its
+    slab: the centre's offset ``Da`` along the unit axis, ``|Da| > ha``), the face
+    wholly in front of the eye: ``t`` the depth of the face's centre, ``tb``,
+    ``tc`` the depth changes along its half edges (``hb``, ``hc`` long)."""
+    p, m = tb + tc, tb - tc
+    return 4.0 * hb * hc * (abs(Da) - ha) * t / ((t * t - p * p) * (t * t - m * m))
+
+
+@inlined
+def front_faces_area(D, H, t, depth):
+    """The sum of :func:`front_face_area` over a box's front faces (one per axis
+    whose slab the eye lies outside, ``|D_a| > H_a``), at unit focal length:
+    ``D`` (3-tuple) the centre's offsets along the unit axes, ``H`` the
+    half-extents, ``t`` the depth changes along the scaled axes, ``depth`` the
+    centre's."""
+    area = 0.0
+    for a in range(3):
+        if abs(D[a]) > H[a]:
+            b, e = (a + 1) % 3, (a + 2) % 3
+            area += front_face_area(D[a], H[a], H[b], H[e], depth - np.sign(D[a]) * t[a], t[b],
+                                    t[e])
+    return area
+
+
+@inlined
 def box_area(view, Rc, pc, c, R, h, corners, xy, P, Q):
     """Projected area in pixels of the box of world centre ``c`` (3,), axes ``R``
     (3, 3) (columns) and half-extents ``h`` (3,) (any negative: empty, 0) under
     the camera of world pose ``Rc``, ``pc``. A box wholly in front of the near
     plane: the sum over its front faces (at most one per axis, the camera
     outside that axis's slab), each projected quad clipped by the viewport
-    (inside it: half the cross product of its diagonals); a box cut by the near
-    plane: the sum over its back faces, clipped by the near plane and the
-    viewport. ``corners`` (8, 3), ``xy`` (8, 2), ``P``, ``Q``
+    (a box wholly in view: each face's closed form, :func:`front_face_area`); a
+    box cut by the near plane: the sum over its back faces, clipped by the near
+    plane and the viewport. ``corners`` (8, 3), ``xy`` (8, 2), ``P``, ``Q``
     (:data:`MAX_VERTICES`, 3): scratch."""
     H = (h[0], h[1], h[2])
     if H[0] < 0 or H[1] < 0 or H[2] < 0:
         return 0.0
-    n = view[3]
+    n, fl = view[3], view[0]
+    wx, wy, wz = c[0] - pc[0], c[1] - pc[1], c[2] - pc[2]      # from the eye, world axes
+    cx, cy, cz = camera_vector(Rc, wx, wy, wz)
+    # wholly in view: beyond the near plane, |f x| <= width/2 d and |f y| <=
+    # height/2 d at the smallest depth d, first by the enclosing sphere (radius
+    # rho), else by the box's extent along the camera's axes (its corners' x in
+    # cx -/+ xr, ...); then the front faces' areas in closed form, from the
+    # centre's offset D along each axis and the depth changes t along the scaled
+    # axes h_b R[:, b]; a box near the viewport's edges takes the clipped path
+    hw, hv = 0.5 * view[1], 0.5 * view[2]
+    rho = np.sqrt(H[0] * H[0] + H[1] * H[1] + H[2] * H[2])
+    d = -cz - rho
+    if d >= n and fl * (abs(cx) + rho) <= hw * d and fl * (abs(cy) + rho) <= hv * d:
+        D = (wx * R[0, 0] + wy * R[1, 0] + wz * R[2, 0], wx * R[0, 1] + wy * R[1, 1] + wz * R[2, 1],
+             wx * R[0, 2] + wy * R[1, 2] + wz * R[2, 2])
+        t = (-H[0] * (Rc[0, 2] * R[0, 0] + Rc[1, 2] * R[1, 0] + Rc[2, 2] * R[2, 0]),
+             -H[1] * (Rc[0, 2] * R[0, 1] + Rc[1, 2] * R[1, 1] + Rc[2, 2] * R[2, 1]),
+             -H[2] * (Rc[0, 2] * R[0, 2] + Rc[1, 2] * R[1, 2] + Rc[2, 2] * R[2, 2]))
+        return fl * fl * front_faces_area(D, H, t, -cz)
     # in the camera frame, in registers (the scratch written below may alias the
-    # inputs): the centre, the axes, the scaled axes h_b R[:, b] and the centre's
-    # offset along each axis, D
-    cx, cy, cz = camera_vector(Rc, c[0] - pc[0], c[1] - pc[1], c[2] - pc[2])
+    # inputs): the axes, the scaled axes and the centre's offsets D
     ax, ay, az = camera_vector(Rc, R[0, 0], R[1, 0], R[2, 0])
     bx, by, bz = camera_vector(Rc, R[0, 1], R[1, 1], R[2, 1])
     ex, ey, ez = camera_vector(Rc, R[0, 2], R[1, 2], R[2, 2])
@@ -290,6 +333,10 @@ def box_area(view, Rc, pc, c, R, h, corners, xy, P, Q):
     ax, ay, az = H[0] * ax, H[0] * ay, H[0] * az
     bx, by, bz = H[1] * bx, H[1] * by, H[1] * bz
     ex, ey, ez = H[2] * ex, H[2] * ey, H[2] * ez
+    d = -cz - (abs(az) + abs(bz) + abs(ez))
+    if (d >= n and fl * (abs(cx) + abs(ax) + abs(bx) + abs(ex)) <= hw * d
+            and fl * (abs(cy) + abs(ay) + abs(by) + abs(ey)) <= hv * d):
+        return fl * fl * front_faces_area(D, H, (-az, -bz, -ez), -cz)
     front = behind = True
     lo_u = lo_v = np.inf
     hi_u = hi_v = -np.inf
@@ -312,16 +359,10 @@ def box_area(view, Rc, pc, c, R, h, corners, xy, P, Q):
     if front:
         if hi_u <= 0 or hi_v <= 0 or lo_u >= view[1] or lo_v >= view[2]:
             return 0.0
-        inside = lo_u >= 0 and lo_v >= 0 and hi_u <= view[1] and hi_v <= view[2]
         for a in range(3):
             if abs(D[a]) <= H[a]:
                 continue                     # the camera in the slab: both faces edge-on or away
             face = 2 * a + 1 if D[a] < 0 else 2 * a
-            if inside:                       # half the cross product of the quad's diagonals
-                i, j, k, m = FACES[face, 0], FACES[face, 1], FACES[face, 2], FACES[face, 3]
-                area += 0.5 * abs((xy[k, 0] - xy[i, 0]) * (xy[m, 1] - xy[j, 1])
-                                  - (xy[k, 1] - xy[i, 1]) * (xy[m, 0] - xy[j, 0]))
-                continue
             for v in range(4):
                 P[v, 0], P[v, 1] = xy[FACES[face, v], 0], xy[FACES[face, v], 1]
             area += viewport_area(view, P[:, :2], 4, Q[:, :2])
