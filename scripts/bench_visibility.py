@@ -59,23 +59,24 @@ def setups():
 
 
 @njit
-def _in_loop(k, codes, view, Rc, pc, nb, left, right, first, hybrid, R_top, p_top, poses, body,
-             world, N1, N, moved, scratch):
+def _in_loop(k, codes, view, Rc, pc, nb, left, right, first, hybrid, since, R_top, p_top, poses,
+             body, cache, world, N1, N, moved, scratch):
     """``k`` evaluations of :func:`vdad.visibility.region_bvh_pass` from compiled
     code, as the compiled adaptive steps call it once per frame (the active
     joints' poses ``R_top``, ``p_top`` given: the step computes them)."""
     for _ in range(k):
-        region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, R_top, p_top,
-                        poses, body, world, N1, N, moved, scratch)
+        region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, since, R_top,
+                        p_top, poses, body, cache, world, N1, N, moved, scratch)
 
 
 @njit
 def _placed_in_loop(k, codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
-                    scratch):
+                    grouped, scratch):
     """``k`` evaluations of :func:`vdad.visibility.cover`, every body's pose given
-    (as a step of the full DCA has them)."""
+    (as a step of the full DCA has them; ``grouped``: none)."""
     for _ in range(k):
-        cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch)
+        cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, grouped,
+              scratch)
 
 
 def hybrids(model, tree, q):
@@ -92,18 +93,18 @@ def in_loop_calls(cov, q, k, adaptives):
     """Calls of ``k`` in-loop evaluations of ``cov``: from the step's kinematics of
     each of ``adaptives`` (:func:`hybrids`), and from every body's pose."""
     model, tree = cov.model, cov.tree
-    constants, (_, views, Rc, pc) = cov.loop_coverage([0], [0.0])
-    codes, first, poses, body, world, N1, moved, scratch = constants
+    constants, (_, views, Rc, pc) = cov.loop_coverage([0], [0.0], adaptives[-1])
+    codes, first, poses, body, cache, world, N1, moved, scratch = constants
     camera = (codes, tuple(views[0]), Rc[0], pc[0], model.nb, tree.arrays[0], tree.arrays[1])
     N = np.empty(tree.n_nodes + 1)
     calls = []
     for ad in adaptives:
         kin = ad.front_kinematics(q)
-        args = camera + (first, ad.group_frames, kin.R, kin.p, poses, body, world, N1, N, moved,
-                         scratch)
+        args = camera + (first, ad.group_frames, ad.since, kin.R, kin.p, poses, body, cache, world,
+                         N1, N, moved, scratch)
         calls.append(lambda a=args: _in_loop(k, *a))
     R, p = vdad.Simulator(model, q).body_poses()
-    args = camera + (body, R, p, world, N1, N, moved, scratch)
+    args = camera + (body, R, p, world, N1, N, moved, (np.zeros(0, bool), cache[0]), scratch)
     return calls + [lambda: _placed_in_loop(k, *args)]
 
 

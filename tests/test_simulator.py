@@ -402,8 +402,8 @@ def test_compiled_adaptive_steps_equal_the_python_steps(name, method, options):
         coverage = sim.adaptive.coverage
         if coverage is not None and loop:
             in_loop = coverage.loop_coverage
-            coverage.loop_coverage = (lambda steps, times, calls=calls, in_loop=in_loop:
-                                      calls.extend(times) or in_loop(steps, times))
+            coverage.loop_coverage = (lambda steps, times, ad, calls=calls, in_loop=in_loop:
+                                      calls.extend(times) or in_loop(steps, times, ad))
         elif coverage is not None:
             def counted(t, q, ad, calls=calls, coverage=coverage):
                 return calls.append(t) or coverage(t, q, ad)

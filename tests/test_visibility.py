@@ -103,7 +103,8 @@ def test_a_hybrid_places_its_bodies_from_their_groups(seed):
     assert np.any(ad.groups.grounded[groups]) and not np.all(ad.groups.grounded[groups])
     camera = Camera(position=(0.0, -12.0, 2.0), target=(0.0, 0.0, 0.0), yfov=1.2)
     for volume, estimate, pixels in [("sphere", "min", "own"), ("obb", "bodies", "own"),
-                                     ("aabb", "node", "own"), ("sphere", "min", "moved")]:
+                                     ("obb", "min", "own"), ("aabb", "node", "own"),
+                                     ("sphere", "min", "moved")]:
         cov = BoundingVolumes(tree, camera, volume, estimate, pixels=pixels)
         assert cov.covers_every_node
         N = cov(0.0, q)
@@ -128,6 +129,33 @@ def test_moved_pixels_in_an_adaptive_region_equal_a_full_evaluation():
             np.testing.assert_allclose(sim.adaptive.N_M, N, rtol=1e-9)
             assert N[sim.tree.n_nodes - 1] == pytest.approx(N[:scene.model.nb].sum())
     assert rigid > 0                                 # the region was really pruned
+
+
+def test_oriented_boxes_of_rigid_groups_follow_the_region():
+    """view-bvh with oriented boxes places the rigid groups' internal volumes from
+    their frames, kept in the estimator between frames (``region_bvh_pass``): as
+    groups form, grow and are released in the compiled steps, and when the
+    estimator moves to another simulator, ``N_M`` stays the full evaluation's at
+    the same configuration."""
+    scene = pendulum(n_bodies=24, axes="alternate", angle=1.0)
+    full = BoundingVolumes(scene.simulator().tree, scene.camera, "obb")
+    shared = None
+    for run in range(2):
+        sim = scene.simulator(method="view-bvh", volume="obb", threshold=2e-4 * (run + 1),
+                              coverage_every=1)
+        if shared is None:
+            shared = sim.adaptive.coverage
+        sim.adaptive.coverage = shared                   # the same estimator's cache
+        compared = 0
+        for step in range(160):
+            t, q = sim.t, sim.q.copy()
+            sim.step()
+            if step % 8 == 7 and len(sim.adaptive.front) > 2:
+                np.testing.assert_allclose(sim.adaptive.N_M, full(t, q), rtol=1e-9)
+                compared += 1
+        assert compared > 5
+        assert sum(s.rigidified for s in sim.history) > 0
+        assert sum(s.released for s in sim.history) > 0
 
 
 def _run(scene, camera, threshold, steps=300, **options):

@@ -727,7 +727,8 @@ class AdaptiveDynamics:
             due = [s for s in range(m) if (self.step_count + s) % self.coverage_every == 0
                    or (s == 0 and self._stale_coverage)]
             loop = getattr(self.coverage, "loop_coverage", None)
-            in_loop = None if loop is None else loop(due, [(time0 + s) * self.dt for s in due])
+            times = [(time0 + s) * self.dt for s in due]
+            in_loop = None if loop is None else loop(due, times, self)
             if in_loop is not None:             # bounding volumes, in the compiled steps
                 coverage, self._stale_coverage = in_loop, False
             else:

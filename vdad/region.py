@@ -1149,7 +1149,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     fjs, fkin, states, f_ext, tau = force_work
     q_last, qd_last = last
     active, counts, qdd = region[0], region[10], work[7]
-    (codes, first, poses, volumes, world, N1, moved, scratch), (due, views, Rcs, pcs) = coverage
+    (codes, first, poses, volumes, cache, world, N1, moved, scratch), (due, views, Rcs, pcs) = \
+        coverage
     f, placed = 0, False          # placed: kin holds the active joints' at (q, qd)
     for s in range(n):
         step = step0 + s
@@ -1161,8 +1162,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             v = views[f]
             region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
                             tree[1], first, (region[4], counts[N_VISIT], active, groups[4],
-                                             top, groups[5], groups[6]),
-                            kin[5], kin[6], poses, volumes, world, N1, region[17], moved,
+                                             top, groups[5], groups[6]), region[3],
+                            kin[5], kin[6], poses, volumes, cache, world, N1, region[17], moved,
                             scratch)
             f += 1
         for i in range(q.shape[0]):

@@ -23,7 +23,9 @@ adaptive dynamics only the active nodes and the front need ``N_M``: under eq. 5
 keeps its volume in its group frame (computed once when it became rigid) and is
 only placed, so the cost follows the active region (and a region change needs a
 new evaluation: :attr:`BoundingVolumes.covers_every_node`); eqs. 6-7, world
-boxes and rendering touch every body, and evaluate the whole tree in one pass.
+boxes and rendering touch every body, and evaluate the whole tree in one pass,
+in which oriented boxes of the rigid groups' internal nodes are also placed from
+those volumes kept in their group frames rather than merged.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import numpy as np
 from ._linalg import as_input, compiling, inlined, pass_kernel
 from .bounding import (
     KIND_CODE,
+    OBB,
     body_volumes,
     camera_pose,
     check_volume,
@@ -114,7 +117,7 @@ def combine(estimate, N1, N2):
 
 @pass_kernel
 def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
-                  scratch):
+                  grouped, scratch):
     """``N_M`` of every node (Kim 2008 §5.3, eqs. 5-7) into ``N`` (n_nodes + 1,):
     the bodies' volumes ``body`` (packed ``c, R, h``, body frames) placed at their
     world poses ``R``, ``p``, their areas; bottom-up, each internal node's volume
@@ -124,9 +127,17 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
     eq. 7 a node's area is not computed where its bodies' total is below its
     children's areas (``docs/visibility.md``, "Areas that eq. 7 skips"): its
     volume holds theirs, so its area is at least the larger, and ``N_M`` is the
-    total; ``N1`` keeps that bound. ``scratch``: :func:`~vdad.projection.box_scratch`."""
+    total; ``N1`` keeps that bound. ``grouped`` = (active (N,), local): with
+    ``active`` not empty, an oriented box of an internal node inside a rigid
+    group (not active) is its volume ``local`` in its own frame, kept by
+    :func:`refresh_group`, placed at that frame's pose ``R[n]``, ``p[n]``
+    (:func:`~vdad.hybrid.group_poses`) instead of merged: the merge commutes
+    with placement, so the two agree to rounding, and a placement costs less than
+    half a merge. ``scratch``: :func:`~vdad.projection.box_scratch`."""
     bc, bR, bh = body
     c, Rv, h = world
+    active, (lc, lR, lh) = grouped
+    from_groups = kind == OBB and active.shape[0] > 0
     n_nodes = nb + left.shape[0]
     h[n_nodes, 0] = -1.0
     N[n_nodes] = 0.0
@@ -139,7 +150,10 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
             N[n] = N[A] + N[B]
             if estimate == BODIES:
                 continue
-            merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
+            if from_groups and not active[n]:
+                place_volume(kind, lc[n], lR[n], lh[n], R[n], p[n], c[n], Rv[n], h[n])
+            else:
+                merge_volumes(kind, c[A], Rv[A], h[A], c[B], Rv[B], h[B], c[n], Rv[n], h[n])
             if estimate == MIN:
                 bound = max(N1[A], N1[B])
                 if N[n] < (1.0 - SKIP_MARGIN) * bound:
@@ -153,14 +167,16 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
 
 
 @inlined
-def cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch):
+def cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, grouped,
+          scratch):
     """Kim 2008 §5.3, eqs. 5-7, of the whole tree from the bodies' world poses
     ``R``, ``p`` into ``N`` (n_nodes + 1,): :func:`coverage_pass`, then, under the
     moved-pixels rule, :func:`moved_pass` (``moved`` its arrays). ``codes`` (3,):
-    volume kind, estimate, moved rule (0/1); ``scratch`` = (a 3 x 3 work matrix,
+    volume kind, estimate, moved rule (0/1); ``grouped``: the rigid groups'
+    volumes of :func:`coverage_pass`; ``scratch`` = (a 3 x 3 work matrix,
     :func:`~vdad.projection.box_scratch`)."""
     coverage_pass(codes[0], codes[1], view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
-                  scratch[1])
+                  grouped, scratch[1])
     if codes[2]:
         parent, root, floating, _, _, joint, sums = moved
         moved_pass(nb, parent, root, floating, left, right, joint, sums, N)
@@ -168,33 +184,45 @@ def cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
 
 @pass_kernel
 def bvh_pass(codes, view, Rc, pc, nb, js, q, kin, left, right, body, world, N1, N, moved,
-             scratch):
+             grouped, scratch):
     """:func:`cover` at configuration ``q`` (nq,), every body placed by
     :func:`~vdad.kinematics.kinematics_pass` (poses only, into ``kin``; rigid joints
     keep their ``q``): the evaluation of :class:`BoundingVolumes` without an
-    adaptive region."""
+    adaptive region (``grouped``: an empty ``active``, every node merged)."""
     R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work = kin
     kinematics_pass(js, q, q, False, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work)
-    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch)
+    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, grouped,
+          scratch)
 
 
 @pass_kernel
-def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, R_top, p_top, poses,
-                    body, world, N1, N, moved, scratch):
+def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, since, R_top, p_top,
+                    poses, body, cache, world, N1, N, moved, scratch):
     """:func:`cover` of a hybrid body: every body placed from the poses ``R_top``,
     ``p_top`` (nb, ...) of the active joints' child bodies that a step of
     adaptive dynamics computes, the rigid groups' bodies from their group's
     (:func:`~vdad.hybrid.group_poses`, into ``poses`` = (R (n_nodes + 1, 3, 3),
     p (n_nodes + 1, 3))). ``hybrid`` = (visit, n_visit, active, grounded, top,
     rel_R, rel_p): the region's front and the groups' frames; ``first``: each
-    internal node's first internal id. The evaluation of :class:`BoundingVolumes`
-    with an adaptive region, once per frame inside the compiled adaptive steps
-    (``vdad.region.region_steps``)."""
+    internal node's first internal id. Oriented boxes: the volumes of the rigid
+    groups' internal nodes placed from their frames (:func:`coverage_pass`),
+    each group's first refreshed where its ``stamp`` is not the front node's
+    ``since`` (``cache`` = (local, stamp, tmp) of :func:`refresh_group`). The
+    evaluation of :class:`BoundingVolumes` with an adaptive region, once per frame
+    inside the compiled adaptive steps (``vdad.region.region_steps``)."""
     visit, n_visit, active, grounded, top, rel_R, rel_p = hybrid
+    local, stamp, tmp = cache
     R, p = poses
     group_poses(nb, left, right, first, visit, n_visit, active, grounded, top, rel_R, rel_p,
                 R_top, p_top, R, p, scratch[0])
-    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, scratch)
+    if codes[0] == OBB:
+        for e in range(n_visit):
+            F = visit[e]
+            if F >= nb and not active[F] and stamp[F] != since[F]:
+                refresh_group(codes[0], nb, left, right, first, F, rel_R, rel_p, since, stamp,
+                              local, tmp)
+    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
+          (active, local), scratch)
 
 
 @pass_kernel
@@ -230,23 +258,30 @@ def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, ground
         N[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], scratch)
 
 
-@pass_kernel
-def refresh_local(kind, nb, left, right, first, stale, rel_R, rel_p, since, stamp, local, tmp):
-    """Volumes in their group frame of the ``stale`` rigid front nodes and of their
-    subtrees (internal ids ``first[F - nb]`` to ``F``, children first): each node
-    ``C`` encloses its ``A`` child's volume and its ``B`` child's placed at the pose
-    of ``B``'s top body in ``C``'s frame (``rel_R``, ``rel_p``); their ``stamp``
-    becomes their ``since``."""
+@inlined
+def refresh_group(kind, nb, left, right, first, F, rel_R, rel_p, since, stamp, local, tmp):
+    """Volumes in their own frame (that of their top body) of the rigid front node
+    ``F`` and of its subtree (internal ids ``first[F - nb]`` to ``F``, children
+    first) into ``local``: each node ``C`` encloses its ``A`` child's volume and its
+    ``B`` child's placed at the pose of ``B``'s top body in ``C``'s frame
+    (``rel_R``, ``rel_p``); their ``stamp`` becomes their ``since``. ``tmp``: one
+    volume's scratch."""
     lc, lR, lh = local
     tc, tR, th = tmp
     n_nodes = nb + left.shape[0]
+    for m in range(first[F - nb], F - nb + 1):
+        C, A, B = nb + m, child_slot(left[m], n_nodes), child_slot(right[m], n_nodes)
+        place_volume(kind, lc[B], lR[B], lh[B], rel_R[C], rel_p[C], tc, tR, th)
+        merge_volumes(kind, lc[A], lR[A], lh[A], tc, tR, th, lc[C], lR[C], lh[C])
+        stamp[C] = since[C]
+
+
+@pass_kernel
+def refresh_local(kind, nb, left, right, first, stale, rel_R, rel_p, since, stamp, local, tmp):
+    """:func:`refresh_group` of each of the ``stale`` rigid front nodes."""
     for k in range(stale.shape[0]):
-        F = stale[k]
-        for m in range(first[F - nb], F - nb + 1):
-            C, A, B = nb + m, child_slot(left[m], n_nodes), child_slot(right[m], n_nodes)
-            place_volume(kind, lc[B], lR[B], lh[B], rel_R[C], rel_p[C], tc, tR, th)
-            merge_volumes(kind, lc[A], lR[A], lh[A], tc, tR, th, lc[C], lR[C], lh[C])
-            stamp[C] = since[C]
+        refresh_group(kind, nb, left, right, first, stale[k], rel_R, rel_p, since, stamp, local,
+                      tmp)
 
 
 def moved_arrays(tree):
@@ -271,8 +306,9 @@ def idle_loop_coverage(tree):
     :meth:`BoundingVolumes.loop_coverage`, empty, so that numba compiles the loop
     once."""
     box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
-    constants = (np.zeros(3, np.int64), np.zeros(1, np.int64), box[1:], box, box, np.zeros(1),
-                 moved_arrays(tree), (np.empty((3, 3)), box_scratch()))
+    cache = (box, np.zeros(1), tuple(a[0] for a in box))
+    constants = (np.zeros(3, np.int64), np.zeros(1, np.int64), box[1:], box, cache, box,
+                 np.zeros(1), moved_arrays(tree), (np.empty((3, 3)), box_scratch()))
     return _empty_like(constants), _frames([], [])
 
 
@@ -365,13 +401,17 @@ class BoundingVolumes(_Coverage):
         self.body = pack(body_volumes(self.model, volume))                # body frames
         self._left, self._right = tree.arrays[0], tree.arrays[1]
         # node volumes in world coordinates, and in their rigid group's frame (valid
-        # while stamp == adaptive.since); the last slot is the ground, empty
+        # while stamp == adaptive.since, for the adaptive region whose since array
+        # is _bound); the last slot is the ground, empty
         self.world = tuple(np.zeros((n + 1,) + a.shape[1:]) for a in self.body)
         self.local = tuple(np.zeros((n + 1,) + a.shape[1:]) for a in self.body)
         for a, b in zip(self.local, self.body, strict=True):
             a[:nb] = b
         self.local[2][nb:] = -1.0
         self.stamp = np.full(n + 1, np.nan)
+        self._bound = None
+        self._ungrouped = (np.zeros(0, bool), self.local)     # bvh_pass: every node merged
+        self._cache = (self.local, self.stamp, tuple(np.zeros(a.shape[1:]) for a in self.local))
         self._N1 = np.zeros(n + 1)
         self._poses = (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)))   # group_poses' out
         self._scratch = (np.empty((3, 3)), box_scratch())
@@ -392,14 +432,16 @@ class BoundingVolumes(_Coverage):
             with compiling(bvh_pass):
                 bvh_pass(self._codes, view, Rc, pc, nb, plan(self.model).arrays, as_input(q),
                          self._kin.arrays, self._left, self._right, self.body, self.world,
-                         self._N1, N, self._moved, self._scratch)
+                         self._N1, N, self._moved, self._ungrouped, self._scratch)
             return N
+        self._bind(adaptive)
         if self.covers_every_node:       # eqs. 6-7 and world boxes place every body
             kin = adaptive.front_kinematics(q)
             with compiling(region_bvh_pass):
                 region_bvh_pass(self._codes, view, Rc, pc, nb, self._left, self._right,
-                                self.tree.first, adaptive.group_frames, kin.R, kin.p, self._poses,
-                                self.body, self.world, self._N1, N, self._moved, self._scratch)
+                                self.tree.first, adaptive.group_frames, adaptive.since, kin.R,
+                                kin.p, self._poses, self.body, self._cache, self.world, self._N1,
+                                N, self._moved, self._scratch)
             return N
         front, act = adaptive.front, adaptive.act
         self._refresh(front, adaptive)
@@ -409,17 +451,18 @@ class BoundingVolumes(_Coverage):
                              kin.R, kin.p, self.local, self.world, N, self._scratch[1])
         return N
 
-    def loop_coverage(self, steps, times):
+    def loop_coverage(self, steps, times, adaptive):
         """The coverage arguments of the compiled adaptive steps
-        (``vdad.region.region_steps``), which evaluate :func:`region_bvh_pass` before each
-        of the ``steps`` (k,) of a call (ascending, counted from its first) with the
-        camera at the given ``times`` (k,): ``(constants, frames)``, or None where
-        this estimator does not cover every node (its region evaluation needs
-        Python)."""
+        (``vdad.region.region_steps``) of ``adaptive``, which evaluate
+        :func:`region_bvh_pass` before each of the ``steps`` (k,) of a call
+        (ascending, counted from its first) with the camera at the given ``times``
+        (k,): ``(constants, frames)``, or None where this estimator does not cover
+        every node (its region evaluation needs Python)."""
         if not self.covers_every_node:
             return None
-        constants = (self._codes, self.tree.first, self._poses, self.body, self.world, self._N1,
-                     self._moved, self._scratch)
+        self._bind(adaptive)
+        constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
+                     self.world, self._N1, self._moved, self._scratch)
         return constants, _frames(steps, [self._camera_arrays(t) for t in times])
 
     def _camera_arrays(self, t):
@@ -429,6 +472,13 @@ class BoundingVolumes(_Coverage):
         if cam is not self._last_arrays[0]:
             self._last_arrays = (cam, camera_arrays(cam))
         return self._last_arrays[1]
+
+    def _bind(self, adaptive):
+        """The volumes kept in group frames hold for one adaptive region (its
+        ``since`` counts its own steps): another region's clears them."""
+        if adaptive.since is not self._bound:
+            self._bound = adaptive.since
+            self.stamp[:] = np.nan
 
     def _refresh(self, front, adaptive):
         """Volumes in the group frame of the rigid ``front`` nodes whose cache is
@@ -440,7 +490,7 @@ class BoundingVolumes(_Coverage):
             g = adaptive.groups
             refresh_local(self._kind, self.model.nb, self._left, self._right, self.tree.first,
                           _ids(stale), g.rel_R, g.rel_p, since, self.stamp, self.local,
-                          tuple(np.zeros(a.shape[1:]) for a in self.local))
+                          self._cache[2])
 
 
 class RenderedCounts(_Coverage):
