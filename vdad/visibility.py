@@ -206,8 +206,8 @@ def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, since, 
     rel_R, rel_p): the region's front and the groups' frames; ``first``: each
     internal node's first internal id. Oriented boxes: the volumes of the rigid
     groups' internal nodes placed from their frames (:func:`coverage_pass`),
-    each group's first refreshed where its ``stamp`` is not the front node's
-    ``since`` (``cache`` = (local, stamp, tmp) of :func:`refresh_group`). The
+    stale ones refreshed first (``cache`` = (local, stamp, tmp) of
+    :func:`refresh_group`). The
     evaluation of :class:`BoundingVolumes` with an adaptive region, once per frame
     inside the compiled adaptive steps (``vdad.region.region_steps``)."""
     visit, n_visit, active, grounded, top, rel_R, rel_p = hybrid
@@ -217,10 +217,9 @@ def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, since, 
                 R_top, p_top, R, p, scratch[0])
     if codes[0] == OBB:
         for e in range(n_visit):
-            F = visit[e]
-            if F >= nb and not active[F] and stamp[F] != since[F]:
-                refresh_group(codes[0], nb, left, right, first, F, rel_R, rel_p, since, stamp,
-                              local, tmp)
+            if not active[visit[e]]:
+                refresh_group(codes[0], nb, left, right, first, visit[e], rel_R, rel_p, since,
+                              local, stamp, tmp)
     cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
           (active, local), scratch)
 
@@ -259,13 +258,16 @@ def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, ground
 
 
 @inlined
-def refresh_group(kind, nb, left, right, first, F, rel_R, rel_p, since, stamp, local, tmp):
+def refresh_group(kind, nb, left, right, first, F, rel_R, rel_p, since, local, stamp, tmp):
     """Volumes in their own frame (that of their top body) of the rigid front node
     ``F`` and of its subtree (internal ids ``first[F - nb]`` to ``F``, children
-    first) into ``local``: each node ``C`` encloses its ``A`` child's volume and its
-    ``B`` child's placed at the pose of ``B``'s top body in ``C``'s frame
-    (``rel_R``, ``rel_p``); their ``stamp`` becomes their ``since``. ``tmp``: one
-    volume's scratch."""
+    first) into ``local``, where they are stale: ``F`` internal and its ``stamp``
+    not its ``since`` (the step it became rigid). Each node ``C`` encloses its ``A``
+    child's volume and its ``B`` child's placed at the pose of ``B``'s top body in
+    ``C``'s frame (``rel_R``, ``rel_p``); their ``stamp`` becomes their ``since``.
+    ``tmp``: one volume's scratch."""
+    if F < nb or stamp[F] == since[F]:
+        return
     lc, lR, lh = local
     tc, tR, th = tmp
     n_nodes = nb + left.shape[0]
@@ -277,10 +279,10 @@ def refresh_group(kind, nb, left, right, first, F, rel_R, rel_p, since, stamp, l
 
 
 @pass_kernel
-def refresh_local(kind, nb, left, right, first, stale, rel_R, rel_p, since, stamp, local, tmp):
-    """:func:`refresh_group` of each of the ``stale`` rigid front nodes."""
-    for k in range(stale.shape[0]):
-        refresh_group(kind, nb, left, right, first, stale[k], rel_R, rel_p, since, stamp, local,
+def refresh_local(kind, nb, left, right, first, front, rel_R, rel_p, since, local, stamp, tmp):
+    """:func:`refresh_group` of each of the rigid ``front`` nodes."""
+    for k in range(front.shape[0]):
+        refresh_group(kind, nb, left, right, first, front[k], rel_R, rel_p, since, local, stamp,
                       tmp)
 
 
@@ -484,13 +486,9 @@ class BoundingVolumes(_Coverage):
         """Volumes in the group frame of the rigid ``front`` nodes whose cache is
         stale, and of their subtrees, bottom-up from the bodies'
         (:func:`refresh_local`)."""
-        since = adaptive.since
-        stale = front[(front >= self.model.nb) & (self.stamp[front] != since[front])]
-        if len(stale):
-            g = adaptive.groups
-            refresh_local(self._kind, self.model.nb, self._left, self._right, self.tree.first,
-                          _ids(stale), g.rel_R, g.rel_p, since, self.stamp, self.local,
-                          self._cache[2])
+        g = adaptive.groups
+        refresh_local(self._kind, self.model.nb, self._left, self._right, self.tree.first,
+                      _ids(front), g.rel_R, g.rel_p, adaptive.since, *self._cache)
 
 
 class RenderedCounts(_Coverage):
