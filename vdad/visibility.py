@@ -259,13 +259,15 @@ def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, ground
 
 @inlined
 def refresh_group(kind, nb, left, right, first, F, rel_R, rel_p, since, local, stamp, tmp):
-    """Volumes in their own frame (that of their top body) of the rigid front node
-    ``F`` and of its subtree (internal ids ``first[F - nb]`` to ``F``, children
-    first) into ``local``, where they are stale: ``F`` internal and its ``stamp``
-    not its ``since`` (the step it became rigid). Each node ``C`` encloses its ``A``
-    child's volume and its ``B`` child's placed at the pose of ``B``'s top body in
-    ``C``'s frame (``rel_R``, ``rel_p``); their ``stamp`` becomes their ``since``.
-    ``tmp``: one volume's scratch."""
+    """Kim 2008 §5.3, a rigid node's volume computed once and then only placed
+    (``docs/visibility.md``, "Bounding volumes"): volumes in their own frame (that
+    of their top body) of the rigid front node ``F`` and of its subtree (internal
+    ids ``first[F - nb]`` to ``F``, children first) into ``local``, where they are
+    stale: ``F`` internal and its ``stamp`` not its ``since`` (the step it became
+    rigid). Each node ``C`` encloses its ``A`` child's volume and its ``B`` child's
+    placed at the pose of ``B``'s top body in ``C``'s frame (``rel_R``,
+    ``rel_p``); their ``stamp`` becomes their ``since``. ``tmp``: one volume's
+    scratch."""
     if F < nb or stamp[F] == since[F]:
         return
     lc, lR, lh = local
