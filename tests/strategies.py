@@ -302,9 +302,14 @@ def light_chain(ratio, light, n=5, seed=3):
 
 def thin_tree(seed, n, log_ratios):
     """:func:`random_tree` (every joint kind, composite joints, springs) whose
-    bodies are made thin rods (principal moments ``a, a, a 10^x``) or point masses
-    (every moment times ``10^x``) in turn, ``x`` from ``log_ratios``."""
-    base = random_tree(seed, n=n, composite=True)
+    bodies are made thin (:func:`thin_bodies`)."""
+    return thin_bodies(random_tree(seed, n=n, composite=True), seed, log_ratios)
+
+
+def thin_bodies(base, seed, log_ratios):
+    """``base`` whose bodies are made thin rods (principal moments ``a, a, a
+    10^x``) or point masses (every moment times ``10^x``) in turn, ``x`` from
+    ``log_ratios``."""
     rng = np.random.default_rng(seed)
     bodies = []
     for i, body in enumerate(base.bodies):

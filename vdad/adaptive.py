@@ -33,9 +33,7 @@ derivations and measurements.
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field, fields
-from functools import lru_cache
 
 import numpy as np
 
@@ -48,11 +46,10 @@ from .checks import (
     check_real,
     check_vector,
     check_wrenches,
-    names_text,
     real_array,
 )
-from .dca import body_arrays, dca_pass, leaf_inertias, make_data, plain_arrays
-from .dynamics import default_tree, forward_dynamics
+from .dca import body_arrays, make_data
+from .dynamics import default_tree
 from .errors import InputError
 from .forces import Forces, ForceTables, body_forces, state_bodies
 from .hybrid import RigidGroups, group_poses
@@ -179,47 +176,6 @@ def resolve_weights(model, weights, name="weights"):
     return w
 
 
-#: the relative difference from forward_dynamics above which adaptive dynamics of a
-#: model with thin bodies warns (:func:`plain_error`)
-PLAIN_TOLERANCE = 1e-8
-
-
-@lru_cache(maxsize=64)
-def plain_error(model):
-    """How far the DCA on the bodies' own inverse inertias (:func:`~vdad.dca.
-    plain_arrays`, what adaptive dynamics' passes assemble) is from
-    :func:`~vdad.forward_dynamics`, which raises thin bodies' leaves and refines
-    ((R1)-(R3) of ``docs/accuracy.md``): the largest difference of their
-    accelerations relative to the largest acceleration, at ``q_neutral`` with no
-    velocity and unit joint forces; 0 where ``forward_dynamics`` refines nothing."""
-    if body_arrays(model)[12] == 0:
-        return 0.0
-    q, zero, tau = np.array(model.q_neutral, float), np.zeros(model.nv), np.ones(model.nv)
-    refined = forward_dynamics(model, q, zero, tau)
-    data = make_data(default_tree(model))
-    with compiling(dca_pass):
-        dca_pass(plan(model).arrays, data.layout, plain_arrays(model), q, zero, tau,
-                 np.zeros((0, 6)), data.kin.arrays, data.arrays)
-    scale = np.abs(refined).max()
-    return float(np.abs(data.qdd - refined).max() / scale) if scale > 0 else 0.0
-
-
-def warn_if_plain_is_inexact(model, stacklevel):
-    """A UserWarning where :func:`plain_error` of ``model`` is above
-    :data:`PLAIN_TOLERANCE`: adaptive dynamics' accelerations are then not those
-    of forward_dynamics even with every joint active (issue 19 leaves this open)."""
-    error = plain_error(model)
-    if error > PLAIN_TOLERANCE:
-        leaves = leaf_inertias(model)
-        thin = [model.body_names[i] for i in np.flatnonzero(leaves.raised | leaves.light)]
-        warnings.warn(f"adaptive dynamics of model {model.name!r} assembles its bodies' own "
-                      f"inverse inertias, without the refinement that forward_dynamics gives "
-                      f"thin and light bodies ({names_text(thin)}; docs/accuracy.md): with "
-                      f"every joint active its accelerations differ from forward_dynamics' by "
-                      f"{error:.1e} of the largest (at q_neutral); use method='dca' where "
-                      f"that matters", UserWarning, stacklevel=stacklevel)
-
-
 class AdaptiveDynamics:
     """Adaptive forward dynamics of ``model`` on an assembly ``tree`` (work state;
     the compiled passes are :mod:`vdad.region`).
@@ -294,7 +250,6 @@ class AdaptiveDynamics:
         self.coverage, self.coverage_every = coverage, int(coverage_every)
         self.model = model
         self.tree = tree = default_tree(model) if tree is None else tree
-        warn_if_plain_is_inexact(model, 3)
         self.dt = float(dt)
         self.threshold = None if threshold is None else float(threshold)
         self.budget = None if budget is None else int(budget)

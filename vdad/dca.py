@@ -330,8 +330,8 @@ def body_arrays(model) -> tuple:
 @lru_cache(maxsize=64)
 def plain_arrays(model) -> tuple:
     """:func:`body_arrays` with the bodies' own inverse inertias and no refinement:
-    the DCA of (T2)-(T13) without (R1)-(R3) of ``docs/accuracy.md``, which is what
-    adaptive dynamics assembles (:mod:`vdad.hybrid`)."""
+    the DCA of (T2)-(T13) without (R1)-(R5) of ``docs/accuracy.md``, which
+    ``scripts/bench_accuracy.py`` measures beside the refined one."""
     b = body_arrays(model)
     return (*b[:3], np.linalg.inv(model.inertia), *b[4:12], 0, model.mass)
 
@@ -361,6 +361,9 @@ MAX_REFINE = 40
 #: light ((R4), (R5) of ``docs/accuracy.md``: ``M' = M``): one step of iterative
 #: refinement
 ONE_STEP = -1
+
+#: ``assembled`` of :func:`rhs_passes`: every internal node
+ALL = np.zeros(0, np.bool_)
 
 
 # --- joint forces ---------------------------------------------------------------------
@@ -802,18 +805,19 @@ def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, 
 
 @pass_kernel
 def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma, f_J, qdd,
-               tmp):
-    """``qdd = M^-1 tau`` (nv,) by the DCA at the configuration of its last
-    evaluation, whose ``G_a``, ``Y``, ``W^T W_m``, ``(P F)^T`` it reuses: the
-    vector parts alone ((R3) of ``docs/accuracy.md``), leaves without known
-    wrenches, (T8)-(T9) by :func:`joint_rhs`, (T12) by :func:`port_vectors`, then
-    :func:`solve_node`."""
-    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
-     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    n = post.shape[0]
+               tmp, order, n, assembled):
+    """``qdd = M^-1 tau`` by the DCA at the configuration of its last evaluation,
+    whose ``G_a``, ``Y``, ``W^T W_m``, ``(P F)^T`` it reuses: the vector parts
+    alone ((R3) of ``docs/accuracy.md``), leaves without known wrenches, (T8)-(T9)
+    by :func:`joint_rhs`, (T12) by :func:`port_vectors`, then :func:`solve_node`;
+    over the nodes ``order[:n]`` in depth-first post-order, of which the internal
+    nodes marked in ``assembled`` (every internal node where it is empty) were
+    assembled and the others are leaves (on adaptive dynamics' region: its hybrid,
+    ``M_AA`` of the active joints' dofs)."""
+    n_ports, pair_base = tree[5], tree[6]
     for k in range(n):
-        node = post[k]
-        if node < nb:
+        node = order[k]
+        if not (node >= nb and (assembled.shape[0] == 0 or assembled[node])):
             for a in range(n_ports[node]):
                 for r in range(6):
                     b[pair_base[node] + a, r] = 0.0
@@ -823,8 +827,8 @@ def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma,
                   tmp[7, 2])
         port_vectors(i, nb, tree, b, beta[i], G)                   # (T12)
     for k in range(n - 1, -1, -1):
-        node = post[k]
-        if node >= nb:
+        node = order[k]
+        if node >= nb and (assembled.shape[0] == 0 or assembled[node]):
             solve_node(node - nb, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta,
                        gamma, f_J, qdd, tmp)
 
@@ -856,7 +860,9 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
     for j in range(nb):                                       # f_J: Newton-Euler's of x
         for s in range(6):
             f_J[j, s] = f[j, s]
-    rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z, tmp)
+    post = tree[13]
+    rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z, tmp, post,
+               post.shape[0], ALL)
     if steps == ONE_STEP:
         for i in range(nv):
             qdd[i] = x[i] + z[i]
@@ -886,7 +892,7 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
             for s in range(6):
                 f_J[j, s] += alpha * f[j, s]
         rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z,
-                   tmp)
+                   tmp, post, post.shape[0], ALL)
         rz_next = 0.0
         for i in range(nv):
             rz_next += r[i] * z[i]

@@ -7,7 +7,12 @@ parent is outside it; the world frame when the node holds a ground leaf, which
 makes it immobile):
 
 * composite ``mass``, centre of mass ``com`` and rotational inertia ``inertia``
-  about it, and its inverse ``Iinv`` (T2);
+  about it;
+* the same of its bodies' leaves (:func:`vdad.dca.leaf_inertias`: thin and
+  light bodies raised, (R2)-(R5) of ``docs/accuracy.md``), ``leaf_mass``,
+  ``leaf_com``, ``leaf_inertia``, and the inverse ``Iinv`` of ``leaf_inertia``,
+  which the group's leaf (T2) uses; the model's own for bodies that are not
+  raised;
 * the pose of each port's body (``port_R``, ``port_p``, one per port slot of the
   tree) and the pose of the top body of its ``B`` child (``rel_R``, ``rel_p``);
 * the sums of the external wrenches on its bodies, ``N = sum n_i``,
@@ -39,6 +44,7 @@ from ._linalg import (
     mv3,
     pass_kernel,
 )
+from .dca import leaf_inertias
 from .heaps import sort_ascending
 from .kinematics import joint_placement, plan
 
@@ -56,11 +62,20 @@ class RigidGroups:
         self.mass = np.zeros(N)                                  # [N]
         self.com = np.zeros((N, 3))                              # [N, 3]
         self.inertia = np.zeros((N, 3, 3))                       # [N, 3, 3]
-        self.Iinv = np.zeros((N, 3, 3))                          # [N, 3, 3]
+        self.Iinv = np.zeros((N, 3, 3))                          # [N, 3, 3] leaf's
+        self.leaf_mass = np.zeros(N)                             # [N]
+        self.leaf_com = np.zeros((N, 3))                         # [N, 3]
+        self.leaf_inertia = np.zeros((N, 3, 3))                  # [N, 3, 3]
         self.grounded = np.zeros(N, bool)
         self.grounded[-1] = True
         self.mass[:nb], self.com[:nb], self.inertia[:nb] = model.mass, model.com, model.inertia
-        self.Iinv[:nb] = np.linalg.inv(model.inertia)
+        leaves = leaf_inertias(model)
+        own = np.linalg.inv(model.inertia)
+        changed = np.any(leaves.Iinv != own, axis=(1, 2))
+        self.Iinv[:nb] = leaves.Iinv
+        self.leaf_mass[:nb], self.leaf_com[:nb] = leaves.mass, model.com
+        self.leaf_inertia[:nb] = model.inertia
+        self.leaf_inertia[:nb][changed] = np.linalg.inv(leaves.Iinv[changed])
         self.port_R = np.broadcast_to(np.eye(3), (tree.n_slots, 3, 3)).copy()
         self.port_p = np.zeros((tree.n_slots, 3))
         self.rel_R = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
@@ -80,7 +95,8 @@ class RigidGroups:
     @property
     def arrays(self) -> tuple:
         return (self.mass, self.com, self.inertia, self.Iinv, self.grounded, self.rel_R,
-                self.rel_p, self.port_R, self.port_p, self.fN, self.fF, self.fK)
+                self.rel_p, self.port_R, self.port_p, self.fN, self.fF, self.fK,
+                self.leaf_mass, self.leaf_com, self.leaf_inertia)
 
     def freeze(self, nodes, q, kin):
         """Make internal ``nodes`` (a union of subtrees) rigid at configuration ``q``
@@ -130,18 +146,56 @@ def child_slot(child, n_nodes):
 
 
 @inlined
+def composite(mass, com, inertia, A, B, C, TR, Tp, R3):
+    """Mass, centre of mass and inertia of node ``C`` (rows of ``mass``, ``com``,
+    ``inertia``) from those of ``A`` (in ``C``'s frame) and ``B`` (in its top's
+    frame, at pose ``(TR, Tp)`` in ``C``'s): parallel axes. ``R3`` (>= 3, 3, 3):
+    scratch."""
+    mA, mB = mass[A], mass[B]
+    m = mA + mB
+    cB = R3[2, 0]
+    mv3(TR, com[B], cB)
+    for r in range(3):
+        cB[r] += Tp[r]
+    c = com[C]
+    for r in range(3):
+        c[r] = (mA * com[A, r] + mB * cB[r]) / m
+    I, IB, dA, dB = inertia[C], R3[1], R3[2, 1], R3[2, 2]
+    for r in range(3):                                   # TR I_B TR^T
+        for s in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += TR[r, k] * (inertia[B, k, 0] * TR[s, 0] + inertia[B, k, 1] * TR[s, 1]
+                                   + inertia[B, k, 2] * TR[s, 2])
+            IB[r, s] = acc
+    for r in range(3):
+        dA[r] = com[A, r] - c[r]
+        dB[r] = cB[r] - c[r]
+    nA = dA[0] ** 2 + dA[1] ** 2 + dA[2] ** 2
+    nB = dB[0] ** 2 + dB[1] ** 2 + dB[2] ** 2
+    for r in range(3):                                   # parallel axes
+        for s in range(3):
+            e = 1.0 if r == s else 0.0
+            I[r, s] = (inertia[A, r, s] + IB[r, s] + mA * (nA * e - dA[r] * dA[s])
+                       + mB * (nB * e - dB[r] * dB[s]))
+    mass[C] = m
+
+
+@inlined
 def freeze_node(C, nb, tree, js, q, R_rel, p_rel, R3, groups):
     """Group data of internal node ``C`` from its children ``A`` (the ground: the
     world frame, massless) and ``B`` across its joint ``j`` at ``q`` (theory §6):
     ``B``'s top in ``C``'s frame ``(TR, Tp)`` (``A``'s port pose of ``j``, then
-    ``j``'s placement), composite mass, centre of mass and inertia (parallel axes),
-    port poses, force sums (``K_C = K_A + TR K_B + Tp F_B^T``). ``R_rel``,
-    ``p_rel`` (nb, ...): row ``j`` is scratch; ``R3`` (>= 3, 3, 3): scratch."""
+    ``j``'s placement), composite mass, centre of mass and inertia (parallel axes,
+    :func:`composite`) of its bodies and of their leaves, port poses, force sums
+    (``K_C = K_A + TR K_B + Tp F_B^T``). ``R_rel``, ``p_rel`` (nb, ...): row ``j``
+    is scratch; ``R3`` (>= 3, 3, 3): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
      stage_anchor, stage_ref, stage_q, stage_v, s_pad, subspace) = js
-    mass, com, inertia, Iinv, grounded, rel_R, rel_p, port_R, port_p, fN, fF, fK = groups
+    (mass, com, inertia, Iinv, grounded, rel_R, rel_p, port_R, port_p, fN, fF, fK, leaf_mass,
+     leaf_com, leaf_inertia) = groups
     ground = mass.shape[0] - 1
     i = C - nb
     A, B, j = left[i], right[i], joint[i]
@@ -160,35 +214,9 @@ def freeze_node(C, nb, tree, js, q, R_rel, p_rel, R3, groups):
         mv3(port_R[sA], p_rel[j], Tp)
         for r in range(3):
             Tp[r] += port_p[sA, r]
-    mA, mB = mass[Ag], mass[B]
-    m = mA + mB
-    cB = R3[2, 0]
-    mv3(TR, com[B], cB)
-    for r in range(3):
-        cB[r] += Tp[r]
-    c = com[C]
-    for r in range(3):
-        c[r] = (mA * com[Ag, r] + mB * cB[r]) / m
-    I, IB, dA, dB = inertia[C], R3[1], R3[2, 1], R3[2, 2]
-    for r in range(3):                                   # TR I_B TR^T
-        for s in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += TR[r, k] * (inertia[B, k, 0] * TR[s, 0] + inertia[B, k, 1] * TR[s, 1]
-                                   + inertia[B, k, 2] * TR[s, 2])
-            IB[r, s] = acc
-    for r in range(3):
-        dA[r] = com[Ag, r] - c[r]
-        dB[r] = cB[r] - c[r]
-    nA = dA[0] ** 2 + dA[1] ** 2 + dA[2] ** 2
-    nB = dB[0] ** 2 + dB[1] ** 2 + dB[2] ** 2
-    for r in range(3):                                   # parallel axes
-        for s in range(3):
-            e = 1.0 if r == s else 0.0
-            I[r, s] = (inertia[Ag, r, s] + IB[r, s] + mA * (nA * e - dA[r] * dA[s])
-                       + mB * (nB * e - dB[r] * dB[s]))
-    mass[C] = m
-    inverse3(I, Iinv[C])
+    composite(mass, com, inertia, Ag, B, C, TR, Tp, R3)
+    composite(leaf_mass, leaf_com, leaf_inertia, Ag, B, C, TR, Tp, R3)
+    inverse3(leaf_inertia[C], Iinv[C])
     grounded[C] = grounded[Ag]
     s0 = slot_base[C]
     for a in range(n_ports[C]):                          # port poses in C's frame
@@ -231,7 +259,8 @@ def carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order):
     accumulated change to its parent (``pending`` [3, N, 3, 3]: ``dN``, ``dF`` in
     row 0, ``dK``; ``mark`` [N], ``order`` [N]: scratch), so that ``n_f`` changed
     bodies cost O(n_f log(n / n_f)) visits (theory §6). Returns the visits."""
-    mass, com, inertia, Iinv, grounded, rel_R, rel_p, port_R, port_p, fN, fF, fK = groups
+    (mass, com, inertia, Iinv, grounded, rel_R, rel_p, port_R, port_p, fN, fF, fK, leaf_mass,
+     leaf_com, leaf_inertia) = groups
     n = 0
     for i in range(f_ext.shape[0]):
         same = True

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._linalg import as_input, finite, inlined, kernel, pass_kernel, quaternion_step
-from .dca import dynamics_pass, passive_forces_pass, refine_pass, rhs_passes
+from .dca import ALL, dynamics_pass, passive_forces_pass, refine_pass, rhs_passes
 from .errors import InputError
 from .forces import body_forces
 from .kinematics import as_joint_set, kinematics_pass
@@ -302,7 +302,7 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
         for i in range(nv):
             p_next[i] = p[i] + dt * (dT[i] + g[i])
         rhs_passes(nb, js, tree, kin, inert[11], p_next, G, b, Y, WtWm, PF, beta, gamma, f_J,
-                   qdd, tmp)
+                   qdd, tmp, tree[13], tree[13].shape[0], ALL)
         if inert[12] != 0:
             refine_pass(js, tree, inert, no_wrench, kin, work, MASS, p_next)
         change, size = 0.0, 1e-300

@@ -103,44 +103,70 @@ def inverse_dynamics_pass(js, bodies, kin, f_ext, x, mode, a, f, w, out):
     axes at body origins, are left in the arrays given: with :data:`MASS` and ``x =
     qd``, ``a`` holds the body velocities and ``f`` the momenta of the subtrees
     (S1). ``w`` (2, 6): scratch."""
-    order, parent, v_start, nv_joint, subspace = js[0], js[1], js[6], js[7], js[15]
-    mass, com, inertia, armature = bodies[0], bodies[1], bodies[2], bodies[11]
-    R_rel, p_rel, S, R, v, c_J = kin[0], kin[1], kin[2], kin[5], kin[7], kin[8]
+    order, parent = js[0], js[1]
+    mass, com, inertia = bodies[0], bodies[1], bodies[2]
+    R, v = kin[5], kin[7]
     wrench, rest = w[0], w[1]
     for r in range(6):
         rest[r] = 0.0
     k = order.shape[0]
-    for idx in range(k):                                         # a_j = X a_p + S x + c_J
+    for idx in range(k):                                         # parents first
         j = order[idx]
-        pj, Sj, v0, aj, fj = parent[j], S[subspace[j]], v_start[j], a[j], f[j]
-        if pj >= 0:
-            motion_to_child(R_rel[j], p_rel[j], a[pj], aj)
-        for r in range(6):
-            acc = aj[r] if pj >= 0 else 0.0
-            if mode == FULL:
-                acc += c_J[j, r]
-            for col in range(nv_joint[j]):
-                acc += Sj[r, col] * x[v0 + col]
-            aj[r] = acc
-        spatial_momentum(mass[j], com[j], inertia[j], aj, fj)    # I_o a
+        body_motion(j, parent[j], js, kin, x, mode == FULL, a)
+        spatial_momentum(mass[j], com[j], inertia[j], a[j], f[j])    # I_o a
         if mode != MASS:                          # minus the known wrench, at the origin
             body_wrench(j, bodies, f_ext, v[j] if mode == FULL else rest, R[j], wrench)
-            cj = com[j]
-            fj[0] -= wrench[0] + cj[1] * wrench[5] - cj[2] * wrench[4]
-            fj[1] -= wrench[1] + cj[2] * wrench[3] - cj[0] * wrench[5]
-            fj[2] -= wrench[2] + cj[0] * wrench[4] - cj[1] * wrench[3]
-            for r in range(3, 6):
-                fj[r] -= wrench[r]
+            subtract_at_origin(com[j], wrench, f[j])
     for idx in range(k - 1, -1, -1):                             # children first
         j = order[idx]
-        pj, Sj, v0 = parent[j], S[subspace[j]], v_start[j]
+        joint_force(j, parent[j], js, kin, bodies[11], x, f, out)
+
+
+@inlined
+def body_motion(j, pj, js, kin, x, bias, a):
+    """``a_j = X a_p + S x_j`` (+ ``c_J`` with ``bias``): the acceleration (6,) of
+    joint ``j``'s child body, body axes at its origin, from that of its parent
+    body ``pj`` (-1: the world, at rest) across ``j`` (``kin``'s pose of ``j`` in
+    ``pj``'s frame)."""
+    v_start, nv_joint, subspace = js[6], js[7], js[15]
+    R_rel, p_rel, c_J = kin[0], kin[1], kin[8]
+    Sj, v0, aj = kin[2][subspace[j]], v_start[j], a[j]
+    if pj >= 0:
+        motion_to_child(R_rel[j], p_rel[j], a[pj], aj)
+    for r in range(6):
+        acc = aj[r] if pj >= 0 else 0.0
+        if bias:
+            acc += c_J[j, r]
         for col in range(nv_joint[j]):
-            acc = armature[v0 + col] * x[v0 + col]
-            for r in range(6):
-                acc += Sj[r, col] * f[j, r]
-            out[v0 + col] = acc
-        if pj >= 0:
-            force_to_parent_add(R_rel[j], p_rel[j], f[j], f[pj])
+            acc += Sj[r, col] * x[v0 + col]
+        aj[r] = acc
+
+
+@inlined
+def subtract_at_origin(c, wrench, fj):
+    """``fj -= wrench`` (6,), the wrench given at the centre of mass ``c`` moved to
+    the body origin."""
+    fj[0] -= wrench[0] + c[1] * wrench[5] - c[2] * wrench[4]
+    fj[1] -= wrench[1] + c[2] * wrench[3] - c[0] * wrench[5]
+    fj[2] -= wrench[2] + c[0] * wrench[4] - c[1] * wrench[3]
+    for r in range(3, 6):
+        fj[r] -= wrench[r]
+
+
+@inlined
+def joint_force(j, pj, js, kin, armature, x, f, out):
+    """Joint ``j``'s forces ``out`` (its dofs) ``S^T f_j + I_a x`` from the wrench
+    ``f_j`` its child body's subtree needs (body axes at its origin), which is
+    then added to its parent body ``pj``'s (none for the world)."""
+    v_start, nv_joint, subspace = js[6], js[7], js[15]
+    Sj, v0 = kin[2][subspace[j]], v_start[j]
+    for col in range(nv_joint[j]):
+        acc = armature[v0 + col] * x[v0 + col]
+        for r in range(6):
+            acc += Sj[r, col] * f[j, r]
+        out[v0 + col] = acc
+    if pj >= 0:
+        force_to_parent_add(kin[0][j], kin[1][j], f[j], f[pj])
 
 
 @pass_kernel

@@ -21,6 +21,9 @@ pre-placement. Then one evaluation (:func:`evaluate`) is
    acceleration score is below ``threshold / kappa`` (threshold mode) and skips
    their subtrees: their joints coast (``qdd = 0``); in budget mode it solves
    every active node and a max-heap then keeps the ``budget`` of highest score;
+   on models with thin or light bodies, whose groups' leaves are raised, the
+   accelerations are refined on the hybrid (:func:`refine_region`, (R6) of
+   ``docs/accuracy.md``);
 4. on the first evaluation, the one-level look-ahead at the front
    (:func:`lookahead`).
 
@@ -50,12 +53,14 @@ from ._linalg import (
     symmetric_part,
 )
 from .dca import (
+    ONE_STEP,
     assemble_node,
     copy_block,
     joint_node,
     leaf_blocks,
     pair_offset,
     port_blocks,
+    rhs_passes,
     solve_node,
     spring_force,
 )
@@ -64,7 +69,13 @@ from .heaps import heap_pop, heap_push, sort_ascending
 from .hybrid import carry_forces, freeze_node
 from .integrators import normalize_stage, stage_nq, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
-from .newton_euler import known_wrench
+from .newton_euler import (
+    body_motion,
+    joint_force,
+    known_wrench,
+    spatial_momentum,
+    subtract_at_origin,
+)
 from .visibility import region_bvh_pass
 
 #: indices of :attr:`RegionData.counts`
@@ -88,7 +99,9 @@ class RegionData:
     metric (T15); la [N]: the look-ahead metric of front nodes; N_M [N]: coverage;
     wA, wV [nv]: the diagonal weights of (T14)-(T15); h [N, 6]: momenta of the
     front groups (the locking impulse); heap [2, N], popped [N]: budget mode.
-    H, M [max ports, 6, 6], mtmp [10, 6, 6]: scratch.
+    H, M [max ports, 6, 6], mtmp [10, 6, 6]: scratch. front [nb]: the front group
+    whose top is each body (set for the child bodies of active joints); dofs [nv]:
+    scratch (:func:`refine_region`).
     """
 
     active: np.ndarray
@@ -117,6 +130,8 @@ class RegionData:
     H: np.ndarray
     M: np.ndarray
     mtmp: np.ndarray
+    front: np.ndarray
+    dofs: np.ndarray
 
     @classmethod
     def empty(cls, tree, wA, wV):
@@ -130,14 +145,14 @@ class RegionData:
                    z((tree.n_pairs, 6, 6)), z((tree.n_slots, 6)), z(N), np.full(N, np.nan),
                    z(N), np.full(N, np.nan), np.ones(N), np.array(wA, float),
                    np.array(wV, float), z((N, 6)), z((2, N)), z(N, bool), z((P, 6, 6)),
-                   z((P, 6, 6)), z((10, 6, 6)))
+                   z((P, 6, 6)), z((10, 6, 6)), np.full(nb, -1, np.int64), z(model.nv, np.int64))
 
     @property
     def arrays(self) -> tuple:
         return (self.active, self.pinned, self.desc, self.since, self.visit, self.size,
                 self.joints, self.par, self.R0, self.p0, self.counts, self.Psi, self.p,
                 self.eta, self.A, self.V, self.la, self.N_M, self.wA, self.wV, self.h,
-                self.heap, self.popped, self.H, self.M, self.mtmp)
+                self.heap, self.popped, self.H, self.M, self.mtmp, self.front, self.dofs)
 
 
 # --- the region's lists ------------------------------------------------------------------
@@ -185,6 +200,8 @@ def rebuild(nb, tree, model_js, groups, top, roots, region, stack):
             if n >= nb and active[n]:
                 continue
             n_front += 1
+            if not grounded[n]:
+                region[26][top[n]] = n
             s0 = slot_base[n]
             for a in range(n_ports[n]):                 # the group's outbound ports
                 if slot_side[s0 + a] < 0:
@@ -210,21 +227,19 @@ def rebuild(nb, tree, model_js, groups, top, roots, region, stack):
 @inlined
 def group_leaf(F, tree, groups, gravity, kin, RF, pF, Rw, vF, impulse, hF, Phi, b, X, Q, tmp):
     """Blocks of rigid group ``F`` (a body or a frozen node), theory (T19)-(T20):
-    (T2)-(T3) with its composite mass, centre of mass and inertia, its inbound
-    port at its frame and the port of each outbound joint ``k`` at ``k``'s child
-    frame, whose pose ``(R_rel[k], p_rel[k])`` the kinematics give in a frame at
-    ``(RF, pF)`` in ``F``'s (the identity but for the look-ahead). The known
-    wrench at the centre of mass: gravity and bias for orientation ``Rw`` and
-    velocity ``vF`` (:func:`~vdad.newton_euler.known_wrench`), plus the external sums
-    (moment ``R^T N + vee(K R)`` about the origin, force ``R^T F``); with
-    ``impulse``, the momentum ``hF`` (6,) instead (the locking impulse). ``X``, ``Q``
-    (>= ports, 6, 6), ``tmp`` (>= 5, 6, 6): scratch."""
+    (T2)-(T3) with the composite mass, centre of mass and inverse inertia of its
+    bodies' leaves (:mod:`vdad.hybrid`; its own but for thin and light bodies), its
+    inbound port at its frame and the port of each outbound joint ``k`` at ``k``'s
+    child frame, whose pose ``(R_rel[k], p_rel[k])`` the kinematics give in a
+    frame at ``(RF, pF)`` in ``F``'s (the identity but for the look-ahead); the
+    known wrench :func:`group_wrench`, moved to the leaves' centre of mass. ``X``,
+    ``Q`` (>= ports, 6, 6), ``tmp`` (>= 5, 6, 6): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    mass, com, inertia, Iinv, grounded, rel_R, rel_p, port_R, port_p, fN, fF, fK = groups
+    com, Iinv, leaf_mass, leaf_com = groups[1], groups[3], groups[12], groups[13]
     R_rel, p_rel = kin[0], kin[1]
     P, s0 = n_ports[F], slot_base[F]
-    m, c = mass[F], com[F]
+    c = leaf_com[F]
     eye, zero, Rh, ph = tmp[2, :3, :3], tmp[2, 3, :3], tmp[3, :3, :3], tmp[3, 3, :3]
     identity_pose(eye, zero)
     for a in range(P):
@@ -240,23 +255,42 @@ def group_leaf(F, tree, groups, gravity, kin, RF, pF, Rw, vF, impulse, hF, Phi, 
                     + RF[2, r] * R_rel[k, 2, s]
         port_transform(Rh, ph, c, X[a])
     f = tmp[1, 0]
+    group_wrench(F, groups, gravity, Rw, vF, impulse, hF, f, tmp[4])
+    d = tmp[4, 5, :3]                             # about the leaves' centre of mass
+    for r in range(3):
+        d[r] = com[F, r] - c[r]
+    f[0] += d[1] * f[5] - d[2] * f[4]
+    f[1] += d[2] * f[3] - d[0] * f[5]
+    f[2] += d[0] * f[4] - d[1] * f[3]
+    leaf_blocks(P, pair_base[F], X, Q, leaf_mass[F], Iinv[F], f, Phi, b, tmp[1, 1])
+
+
+@inlined
+def group_wrench(F, groups, gravity, Rw, vF, impulse, hF, f, t):
+    """The known wrench ``f`` (6,) on rigid group ``F`` at its centre of mass, its
+    frame's axes: gravity and bias for orientation ``Rw`` and velocity ``vF``
+    (:func:`~vdad.newton_euler.known_wrench`), plus the external sums (moment ``R^T
+    N + vee(K R)`` about the origin, force ``R^T F``); with ``impulse``, the
+    momentum ``hF`` (6,) instead (the locking impulse). ``t`` (>= 5, 6): scratch."""
+    mass, com, inertia, fN, fF, fK = groups[0], groups[1], groups[2], groups[9], groups[10], \
+        groups[11]
     if impulse:
         for r in range(6):
             f[r] = hF[r]
-    else:
-        known_wrench(m, c, inertia[F], vF, Rw, gravity, f)
-        KR, Fl = tmp[4, :3, :3], tmp[4, 3, :3]
-        for r in range(3):
-            Fl[r] = Rw[0, r] * fF[F, 0] + Rw[1, r] * fF[F, 1] + Rw[2, r] * fF[F, 2]
-            for s in range(3):
-                KR[r, s] = fK[F, r, 0] * Rw[0, s] + fK[F, r, 1] * Rw[1, s] + fK[F, r, 2] * Rw[2, s]
-        for r in range(3):
-            f[r] += Rw[0, r] * fN[F, 0] + Rw[1, r] * fN[F, 1] + Rw[2, r] * fN[F, 2]
-            f[3 + r] += Fl[r]
-        f[0] += KR[1, 2] - KR[2, 1] - (c[1] * Fl[2] - c[2] * Fl[1])
-        f[1] += KR[2, 0] - KR[0, 2] - (c[2] * Fl[0] - c[0] * Fl[2])
-        f[2] += KR[0, 1] - KR[1, 0] - (c[0] * Fl[1] - c[1] * Fl[0])
-    leaf_blocks(P, pair_base[F], X, Q, m, Iinv[F], f, Phi, b, tmp[1, 1])
+        return
+    c = com[F]
+    known_wrench(mass[F], c, inertia[F], vF, Rw, gravity, f)
+    KR, Fl = t[:3, :3], t[3, :3]
+    for r in range(3):
+        Fl[r] = Rw[0, r] * fF[F, 0] + Rw[1, r] * fF[F, 1] + Rw[2, r] * fF[F, 2]
+        for s in range(3):
+            KR[r, s] = fK[F, r, 0] * Rw[0, s] + fK[F, r, 1] * Rw[1, s] + fK[F, r, 2] * Rw[2, s]
+    for r in range(3):
+        f[r] += Rw[0, r] * fN[F, 0] + Rw[1, r] * fN[F, 1] + Rw[2, r] * fN[F, 2]
+        f[3 + r] += Fl[r]
+    f[0] += KR[1, 2] - KR[2, 1] - (c[1] * Fl[2] - c[2] * Fl[1])
+    f[1] += KR[2, 0] - KR[0, 2] - (c[2] * Fl[0] - c[0] * Fl[2])
+    f[2] += KR[0, 1] - KR[1, 0] - (c[0] * Fl[1] - c[1] * Fl[0])
 
 
 @inlined
@@ -455,12 +489,15 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
     locking impulse instead (leaves from the front's momenta ``h``, ``c_J = 0``,
     ``tau = 0``, every active node solved), whose result are the new ``qd`` of the
     active joints. ``placed``: ``kin`` holds the active joints' kinematics at ``(q,
-    qd)`` already (:func:`cap_energy` of the step before computed them). Returns
-    whether ``qdd`` is finite."""
+    qd)`` already (:func:`cap_energy` of the step before computed them). On a
+    model with raised leaves (``bodies[12]``, :func:`~vdad.dca.body_arrays`) the
+    groups' leaves are raised and the accelerations refined on the hybrid
+    (:func:`refine_region`), the metric and look-ahead taken on the leaves.
+    Returns whether ``qdd`` is finite."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
     G = work[16]
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
-     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+     la, N_M, wA, wV, h, heap, popped, H, M, mt, front, dofs) = region
     stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
     stage_stiffness, q_spring, damping, armature, gravity = bodies[8], bodies[9], bodies[10], \
@@ -521,6 +558,14 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
                 desc[m] = False
                 A[m] = np.nan
         e = lo - 1
+    if bodies[12] != 0:                                 # (R6): leaves raised
+        refine_region(nb, js, tree, bodies, groups, kin, work, region, impulse)
+        for e in range(n_visit):                        # the pruned joints coast again
+            n = visit[e]
+            if n >= nb and active[n] and not (impulse or desc[n]):
+                j = joint[n - nb]
+                for k in range(v_start[j], v_start[j] + nv_joint[j]):
+                    qdd[k] = 0.0
     if first and not impulse:
         counts[SOLVED] = solved
         counts[LOOKAHEAD] = 0
@@ -688,6 +733,107 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
         la[F] = val
 
 
+# --- refinement on the hybrid ((R6) of docs/accuracy.md) ----------------------------------
+
+@inlined
+def hybrid_inverse_dynamics(js, groups, region, kin, gravity, armature, x, full, impulse, a,
+                            f, w, out):
+    """(R1) of ``docs/accuracy.md`` on the hybrid: Newton-Euler over the active
+    joints, parents first, each moving the rigid group whose top is its child body
+    (``front``) with the group's own mass, centre of mass and inertia; ``out`` on
+    the active joints' dofs: ``M_AA x`` for their accelerations ``x`` (the rigid
+    joints' held at zero), plus with ``full`` the velocity products ``c_J`` and
+    minus the groups' known wrenches (:func:`group_wrench`; with ``impulse``, their
+    momenta ``h``). ``a``, ``f`` (nb, 6): the rows of the groups' top bodies;
+    ``w`` (>= 6, 6): scratch."""
+    joints, par, counts, h, front = region[6], region[7], region[10], region[20], region[26]
+    mass, com, inertia = groups[0], groups[1], groups[2]
+    R, v = kin[5], kin[7]
+    n = counts[N_JOINTS]
+    for e in range(n):
+        j = joints[e]
+        F = front[j]
+        body_motion(j, par[j], js, kin, x, full, a)
+        spatial_momentum(mass[F], com[F], inertia[F], a[j], f[j])
+        if full:
+            group_wrench(F, groups, gravity, R[j], v[j], impulse, h[F], w[0], w[1:])
+            subtract_at_origin(com[F], w[0], f[j])
+    for e in range(n - 1, -1, -1):
+        j = joints[e]
+        joint_force(j, par[j], js, kin, armature, x, f, out)
+
+
+@pass_kernel
+def refine_region(nb, js, tree, bodies, groups, kin, work, region, impulse):
+    """(R6) of ``docs/accuracy.md``: the accelerations ``qdd`` (in ``work``) of the
+    active joints, from an evaluation of the hybrid on its bodies' leaves
+    (:mod:`vdad.hybrid`), refined as (R3) does the DCA's: preconditioned conjugate
+    gradients on ``ID_A(qdd) = tau`` (:func:`hybrid_inverse_dynamics`, the groups'
+    own inertias), the region's DCA on the leaves (:func:`~vdad.dca.rhs_passes`
+    over its visit list) as preconditioner; at most ``bodies[12]`` steps, the
+    first correction alone with :data:`~vdad.dca.ONE_STEP`."""
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF, a, f, cg, G = work
+    armature, gravity, steps = bodies[11], bodies[4], bodies[12]
+    active, visit, joints, counts, dofs = region[0], region[4], region[6], region[10], \
+        region[27]
+    v_start, nv_joint = js[6], js[7]
+    x, r, z, p, Ap = cg[0], cg[1], cg[2], cg[3], cg[4]
+    m = 0
+    for e in range(counts[N_JOINTS]):
+        j = joints[e]
+        for k in range(v_start[j], v_start[j] + nv_joint[j]):
+            dofs[m] = k
+            m += 1
+    n_visit = counts[N_VISIT]
+    for e in range(m):
+        x[dofs[e]] = qdd[dofs[e]]
+    hybrid_inverse_dynamics(js, groups, region, kin, gravity, armature, x, True, impulse, a, f,
+                            tmp[7], r)
+    for e in range(m):                                        # r = tau - ID(x)
+        r[dofs[e]] = tau[dofs[e]] - r[dofs[e]]
+    rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z, tmp, visit,
+               n_visit, active)
+    if steps == ONE_STEP:
+        for e in range(m):
+            qdd[dofs[e]] = x[dofs[e]] + z[dofs[e]]
+        return
+    rz = 0.0
+    for e in range(m):
+        k = dofs[e]
+        p[k] = z[k]
+        rz += r[k] * z[k]
+    for _ in range(steps):
+        change, size = 0.0, 0.0
+        for e in range(m):
+            change = max(change, abs(z[dofs[e]]))
+            size = max(size, abs(x[dofs[e]]))
+        if not change > 4.0 * 2.220446049250313e-16 * size:
+            break
+        hybrid_inverse_dynamics(js, groups, region, kin, gravity, armature, p, False, impulse,
+                                a, f, tmp[7], Ap)
+        pAp = 0.0
+        for e in range(m):
+            pAp += p[dofs[e]] * Ap[dofs[e]]
+        if not pAp > 0.0:
+            break
+        alpha = rz / pAp
+        for e in range(m):
+            k = dofs[e]
+            x[k] += alpha * p[k]
+            r[k] -= alpha * Ap[k]
+        rhs_passes(nb, js, tree, kin, armature, r, G, b, Y, WtWm, PF, beta, gamma, f, z, tmp,
+                   visit, n_visit, active)
+        rz_next = 0.0
+        for e in range(m):
+            rz_next += r[dofs[e]] * z[dofs[e]]
+        for e in range(m):
+            k = dofs[e]
+            p[k] = z[k] + (rz_next / rz) * p[k]
+        rz = rz_next
+    for e in range(m):
+        qdd[dofs[e]] = x[dofs[e]]
+
+
 # --- budget mode ------------------------------------------------------------------------
 
 @inlined
@@ -742,7 +888,7 @@ def update_region(step, budget, lookahead_on, dt, threshold, keep, dwell, nb, js
     into and whose look-ahead score exceeds ``threshold`` (popped, in budget
     mode), by :func:`change_region`. Returns the number of changed nodes."""
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
-     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+     la, N_M, wA, wV, h, heap, popped, H, M, mt, front, dofs) = region
     n_visit = counts[N_VISIT]
     velocity_metric(nb, js, tree, qd, region)
     cand, rel = stack[0], stack[1]
@@ -823,7 +969,7 @@ def change_region(nc, nr, step, momentum, nb, js, tree, groups, top, roots, q, q
     from the old groups it absorbs, a released node's split over its children),
     which the caller then applies by the impulse passes of :func:`evaluate`."""
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
-     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+     la, N_M, wA, wV, h, heap, popped, H, M, mt, front, dofs) = region
     mass, com, inertia, grounded = groups[0], groups[1], groups[2], groups[4]
     joint = tree[2]
     v_start, nv_joint = js[6], js[7]
@@ -956,7 +1102,7 @@ def hybrid_energy(nb, js, bodies, groups, top, region, q, qd, kin, out):
     centre of mass is in world axes and it does not move), plus the active
     joints' rotors ``1/2 armature qd^2`` (a rigid joint has ``qd = 0``)."""
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
-     la, N_M, wA, wV, h, heap, popped, H, M, mt) = region
+     la, N_M, wA, wV, h, heap, popped, H, M, mt, front, dofs) = region
     mass, com, inertia, grounded = groups[0], groups[1], groups[2], groups[4]
     gravity, armature = bodies[4], bodies[11]
     v_start, nv_joint = js[6], js[7]
