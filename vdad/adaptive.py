@@ -204,7 +204,11 @@ class AdaptiveDynamics:
     paper's algorithm); ``"direct"`` back-substitutes the whole active region and
     sums (T14) bottom-up: the same values and decisions, and cheaper on the
     compiled core, where the coefficients cost more in the bottom-up pass than
-    the back-substitution they save (``docs/adaptive.md``).
+    the back-substitution they save (``docs/adaptive.md``). On models with thin or
+    light bodies, whose accelerations are refined on the hybrid ((R6) of
+    ``docs/accuracy.md``), always ``"direct"``: the coefficients would predict
+    the accelerations of the raised leaves, and the refinement solves every
+    active node anyway.
     energy: ``"cap"`` (default) or ``"free"``. With ``"cap"``, where the step's
     forces are gravity and joint damping only (no joint springs, force elements,
     ``controller`` or ``external``), the total energy never rises above that of
@@ -238,7 +242,7 @@ class AdaptiveDynamics:
         self.drop = drop
         if metric not in METRICS:
             raise InputError(f"unknown metric evaluation {metric!r}; choose one of {METRICS}")
-        self.predictive = metric == "coefficients"
+        self.predictive = metric == "coefficients" and body_arrays(model)[12] == 0
         if energy not in ENERGIES:
             raise InputError(f"unknown energy option {energy!r}; choose one of {ENERGIES}")
         self.energy = energy
