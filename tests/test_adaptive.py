@@ -20,6 +20,7 @@ from strategies import (
     light_trees,
     random_chain,
     random_configuration,
+    random_rotation,
     random_state,
     random_tree,
     thin_bodies,
@@ -32,6 +33,7 @@ from strategies import (
 
 import vdad
 from vdad.adaptive import AdaptiveDynamics, StepStats, default_weights
+from vdad.baselines import root_last_tree
 from vdad.dca import node_blocks
 from vdad.errors import InputError
 from vdad.integrators import semi_implicit_euler
@@ -782,6 +784,49 @@ def test_pruned_joints_of_thin_bodies_coast_and_the_rest_are_refined():
         assert 0 < kept.sum() < model.nv
         err = np.abs(qdd[kept] - full[kept]).max() / np.abs(full).max()
         assert err <= 100 * cond * EPS, (metric, err, cond)
+
+
+def _floating_pair(moments, kind):
+    """A floating body (free joint) and a second body on a ``kind`` joint to it,
+    with principal ``moments`` (the same for both, about seeded axes), gravity."""
+    rng = np.random.default_rng(11)
+    bodies = []
+    for i in range(2):
+        R = random_rotation(rng)
+        inertia = R @ np.diag(moments) @ R.T
+        bodies.append(vdad.Body(f"b{i}", 1.0 + i, (0.1, -0.2, -0.5),
+                                0.5 * (inertia + inertia.T)))
+    joints = [vdad.Joint("j0", None, "b0", "free"),
+              vdad.Joint("j1", "b0", "b1", kind, axis=(0.3, -0.5, 0.8),
+                         placement=vdad.Pose((0.2, 0.0, -1.0)))]
+    return vdad.Model(bodies, joints, name="pair")
+
+
+@pytest.mark.parametrize("kind", ["revolute", "spherical", "prismatic"])
+@pytest.mark.parametrize("moments", [(0.1, 0.08, 0.05), (1.0, 1.0, 1e-8), (1e-12,) * 3])
+def test_the_look_ahead_is_the_released_joints_acceleration(moments, kind):
+    """The look-ahead of a rigid joint whose node's only port is a free joint
+    (which transmits no wrench; the free joint assembled last,
+    ``baselines.root_last_tree``) is exactly the released joint's acceleration in
+    the whole model at rest in that joint: ``la = w |qdd_j|^2`` with ``qdd`` from
+    ``forward_dynamics``, within 100 cond(M) eps, for ordinary, thin and
+    point-mass bodies (the two-body articulated solution with the groups' own
+    inertias, (R6) of docs/accuracy.md)."""
+    model = _floating_pair(moments, kind)
+    q, qd, _, _ = random_state(model, 3)
+    d = joint_dofs(model, [1])
+    qd[d] = 0.0                                               # released at rest
+    tau = np.zeros(model.nv)
+    tau[d] = np.linspace(0.5, -0.3, len(d))
+    ad = AdaptiveDynamics(model, 1e-3, root_last_tree(model), threshold=0.0)
+    node = model.nb + int(np.flatnonzero(ad.tree.joint == 1)[0])
+    rigidify(ad, q, qd, [node])
+    assert node in ad.front
+    evaluate(ad, q, qd, tau)
+    qdd = vdad.forward_dynamics(model, q, qd, tau)[d]
+    expected = float(np.sum(ad.wA[d] * qdd ** 2))
+    cond = np.linalg.cond(crba(model, q))
+    assert abs(ad.la[node] - expected) <= 200 * cond * EPS * expected, (ad.la[node], expected)
 
 
 def test_the_locking_impulse_of_thin_bodies_conserves_momentum():

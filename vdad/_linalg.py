@@ -490,6 +490,22 @@ def cholesky(K, n):
 
 
 @inlined
+def cholesky_solve(L, x, n):
+    """``x = (L L^T)^-1 x`` for the first ``n`` entries of ``x``, ``L`` the factor
+    :func:`cholesky` left in the lower triangle of its block."""
+    for r in range(n):                                 # L y = x
+        acc = x[r]
+        for k in range(r):
+            acc -= L[r, k] * x[k]
+        x[r] = acc / L[r, r]
+    for r in range(n - 1, -1, -1):                     # L^T x = y
+        acc = x[r]
+        for k in range(r + 1, n):
+            acc -= L[k, r] * x[k]
+        x[r] = acc / L[r, r]
+
+
+@inlined
 def solve_general(K, x, n):
     """``x = K^-1 x`` for the leading ``n x n`` block of ``K`` and the first ``n``
     rows of ``x`` (n, m), by Gaussian elimination with partial pivoting; ``K`` and

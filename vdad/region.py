@@ -42,8 +42,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._linalg import (
+    cholesky,
+    cholesky_solve,
     identity_pose,
     inlined,
+    mm3,
     mm6,
     mmt6_add,
     motion_to_child,
@@ -56,10 +59,8 @@ from .dca import (
     ONE_STEP,
     assemble_node,
     copy_block,
-    joint_node,
     leaf_blocks,
     pair_offset,
-    port_blocks,
     rhs_passes,
     solve_node,
     spring_force,
@@ -71,6 +72,7 @@ from .integrators import normalize_stage, stage_nq, stage_rate, stage_step
 from .kinematics import joint_motion, kinematics_pass
 from .newton_euler import (
     body_motion,
+    force_to_parent_add,
     joint_force,
     known_wrench,
     spatial_momentum,
@@ -643,23 +645,17 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
     """The one-level look-ahead (``docs/adaptive.md``) of every internal front node
     ``F`` whose parent was descended into: ``la[F]``, the metric of its joint ``j``
     released at rest, its children ``A`` and ``B`` held rigid, for the wrenches on
-    ``F``'s ports known from the top-down pass: the children's group leaves in
-    ``F``'s frame (``A``'s is ``F``'s; ``B``'s at ``(rel_R, rel_p)`` in it),
-    :func:`~vdad.dca.joint_node` and :func:`~vdad.dca.solve_node` on ``j``. Writes
-    only rows that rigid nodes and joints own (and restores ``qdd = 0`` on ``j``);
+    ``F``'s ports known from the top-down pass (:func:`release_acceleration`).
+    Writes only rows that rigid joints own (and restores ``qdd = 0`` on ``j``);
     ``la`` is NaN on the other front nodes."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
-    G = work[16]
-    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
-     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
-     stage_anchor, stage_ref, stage_q, stage_v, s_pad, subspace) = js
-    grounded, rel_R, rel_p, port_R, port_p = groups[4], groups[5], groups[6], groups[7], groups[8]
+    f_J, qdd, tau, tmp = work[6], work[7], work[8], work[11]
+    joint, v_start, nv_joint = tree[2], js[6], js[7]
     R_rel, p_rel, S, T, W, R, pw, v, c_J, R3, v6, kwork = kin
     active, desc, visit, counts, la, wA = (region[0], region[2], region[4], region[10],
                                            region[16], region[18])
-    gravity, q_spring, armature = bodies[4], bodies[9], bodies[11]
-    Rw, vw, RF, pF = tmp[6, :3, :3], tmp[7, 0], tmp[6, 3:, :3], tmp[7, 1, :3]
+    grounded = groups[4]
+    stage0, n_stages = js[4], js[5]
+    Rw, vw = tmp[6, :3, :3], tmp[6, 3]
     counts[LOOKAHEAD] = 0
     for e in range(counts[N_VISIT]):
         F = visit[e]
@@ -669,68 +665,166 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
             la[F] = np.nan
             continue
         counts[LOOKAHEAD] += 1
-        i = F - nb
-        A, B, j = left[i], right[i], joint[i]
+        j = joint[F - nb]
         joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, kwork)
-        for r in range(6):
-            c_J[j, r] = 0.0
-        if A >= 0:                                   # j's child frame in A's frame
-            sA = slot_base[A] + port_A[i]
-            Rt, pt = R3[0], v6[0]
-            for r in range(3):
-                pt[r] = port_p[sA, r] + port_R[sA, r, 0] * p_rel[j, 0] \
-                    + port_R[sA, r, 1] * p_rel[j, 1] + port_R[sA, r, 2] * p_rel[j, 2]
-                for s in range(3):
-                    Rt[r, s] = port_R[sA, r, 0] * R_rel[j, 0, s] \
-                        + port_R[sA, r, 1] * R_rel[j, 1, s] + port_R[sA, r, 2] * R_rel[j, 2, s]
-            for r in range(3):
-                p_rel[j, r] = pt[r]
-                for s in range(3):
-                    R_rel[j, r, s] = Rt[r, s]
-        for side in range(2):                        # the leaves of A, then B
-            X_ = A if side == 0 else B
-            if X_ < 0:
-                continue
-            if grounded[X_]:
-                zero_blocks(X_, tree, Phi, b)
-                continue
-            for r in range(3):                       # F's frame (the world if grounded)
-                for s in range(3):
-                    Rw[r, s] = (1.0 if r == s else 0.0) if grounded[F] else R[top[F], r, s]
-                    RF[r, s] = 1.0 if r == s else 0.0
-                pF[r] = 0.0
-            for r in range(6):
-                vw[r] = 0.0 if grounded[F] else v[top[F], r]
-            if side == 1:                            # B's frame: (rel_R, rel_p) in F's
-                motion_to_child(rel_R[F], rel_p[F], vw, tmp[7, 2])
-                for r in range(3):
-                    pF[r] = rel_p[F, r]
-                    for s in range(3):
-                        RF[r, s] = rel_R[F, r, s]
-                for r in range(6):
-                    vw[r] = tmp[7, 2, r]
-                for r in range(3):
-                    for s in range(3):
-                        tmp[7, 3 + r, s] = Rw[r, 0] * RF[0, s] + Rw[r, 1] * RF[1, s] \
-                            + Rw[r, 2] * RF[2, s]
-                for r in range(3):
-                    for s in range(3):
-                        Rw[r, s] = tmp[7, 3 + r, s]
-            group_leaf(X_, tree, groups, gravity, kin, RF, pF, Rw, vw, False, vw, Phi, b, X,
-                       GY, tmp)
         for k in range(v_start[j], v_start[j] + nv_joint[j]):
             tau[k] = tau_in[k]
         for s in range(stage0[j], stage0[j] + n_stages[j]):
-            spring_force(s, stage_kind, stage_q, stage_v, bodies[8], q_spring, q, tau)
-        joint_node(i, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta, gamma, tmp)
-        port_blocks(i, nb, tree, Phi, G)
-        solve_node(i, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta, gamma, f_J, qdd,
-                   tmp)
+            spring_force(s, bodies[5], bodies[6], bodies[7], bodies[8], bodies[9], q, tau)
+        for r in range(3):                           # F's frame (the world if grounded)
+            for c in range(3):
+                Rw[r, c] = (1.0 if r == c else 0.0) if grounded[F] else R[top[F], r, c]
+        for r in range(6):
+            vw[r] = 0.0 if grounded[F] else v[top[F], r]
+        release_acceleration(F, nb, tree, js, groups, bodies[4], kin, f_J, tau, bodies[11], Rw,
+                             vw, tmp, qdd)
         val = 0.0
         for k in range(v_start[j], v_start[j] + nv_joint[j]):
             val += wA[k] * qdd[k] * qdd[k]
             qdd[k] = 0.0
         la[F] = val
+
+
+@inlined
+def release_acceleration(F, nb, tree, js, groups, gravity, kin, f_J, tau, armature, Rw, vw,
+                         tmp, qdd):
+    """``qdd`` of the joint ``j`` of rigid node ``F`` released at rest, its children
+    ``A`` and ``B`` rigid groups with their own inertias, under gravity and bias
+    for ``F``'s orientation ``Rw`` and velocity ``vw``, the joint forces ``tau``,
+    and the wrenches ``f_J`` on ``F``'s ports that the top-down pass found: the
+    articulated-body solution of the two bodies (Featherstone's ABA; ``A`` at rest
+    where it holds the ground), in ``A``'s frame (``F``'s) and ``B``'s, at
+    ``(rel_R, rel_p)`` in it: ``U = I_B S``, ``D = S^T U + I_a``, ``u = tau - S^T
+    p_B``, ``I_B^a = I_B - U D^-1 U^T``, ``p_B^a = p_B + U D^-1 u``, ``(I_A + X^T
+    I_B^a X) a_A = -(p_A + X^T p_B^a)``, ``qdd = D^-1 (u - U^T X a_A)`` (``p``: the
+    bias forces, minus the known wrenches). It inverts no inertia but ``D`` and
+    ``I_A + X^T I_B^a X``, so thin and light bodies cost it no accuracy ((R6) of
+    ``docs/accuracy.md``). ``tmp`` (8, 6, 6): scratch but ``tmp[6, :4]``."""
+    (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
+     slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
+    v_start, nv_joint, subspace = js[6], js[7], js[15]
+    mass, com, inertia, grounded, rel_R, rel_p = (groups[0], groups[1], groups[2], groups[4],
+                                                  groups[5], groups[6])
+    R_rel, p_rel = kin[0], kin[1]
+    i = F - nb
+    A, B, j = left[i], right[i], joint[i]
+    v0, d, S = v_start[j], nv_joint[j], kin[2][subspace[j]]
+    RF, pF = rel_R[F], rel_p[F]                      # B's frame in F's
+    IB, U, Z, D, Ia, t = tmp[0], tmp[1], tmp[2], tmp[3], tmp[4], tmp[5]
+    pA, pB, aA = tmp[6, 4], tmp[6, 5], tmp[7, 0]
+    u, m, col, fp = tmp[7, 1], tmp[7, 2], tmp[7, 3], tmp[7, 4]
+    RB, Rh, ph = t[:3, 3:], Ia[:3, :3], Ia[3, :3]
+    fixed = A < 0 or grounded[A]
+    motion_to_child(RF, pF, vw, col)                 # B's velocity and orientation
+    mm3(Rw, RF, RB)
+    for r in range(6):
+        pA[r] = 0.0
+        pB[r] = 0.0
+    group_wrench(B, groups, gravity, RB, col, False, col, fp, t)
+    subtract_at_origin(com[B], fp, pB)
+    if not fixed:
+        group_wrench(A, groups, gravity, Rw, vw, False, vw, fp, t)
+        subtract_at_origin(com[A], fp, pA)
+    s0 = slot_base[F]
+    for a in range(n_ports[F]):                      # minus the ports' wrenches
+        s, k = s0 + a, slot_joint[s0 + a]
+        for r in range(6):
+            fp[r] = -slot_side[s] * f_J[k, r]
+        if slot_side[s] > 0:                         # the inbound port: F's frame, on A
+            for r in range(6):
+                pA[r] += fp[r]
+        elif slot_child[s] == A:
+            force_to_parent_add(R_rel[k], p_rel[k], fp, pA)
+        else:                                        # the port's pose in B's frame
+            for r in range(3):
+                ph[r] = (RF[0, r] * (p_rel[k, 0] - pF[0]) + RF[1, r] * (p_rel[k, 1] - pF[1])
+                         + RF[2, r] * (p_rel[k, 2] - pF[2]))
+                for c in range(3):
+                    Rh[r, c] = RF[0, r] * R_rel[k, 0, c] + RF[1, r] * R_rel[k, 1, c] \
+                        + RF[2, r] * R_rel[k, 2, c]
+            force_to_parent_add(Rh, ph, fp, pB)
+    spatial_inertia(mass[B], com[B], inertia[B], col, IB)
+    for r in range(6):                               # U = I_B S
+        for c in range(d):
+            acc = 0.0
+            for k in range(6):
+                acc += IB[r, k] * S[k, c]
+            U[r, c] = acc
+    for a in range(d):                               # D = S^T U + I_a, u = tau - S^T p_B
+        for c in range(d):
+            acc = 0.0
+            for r in range(6):
+                acc += S[r, a] * U[r, c]
+            D[a, c] = acc
+        D[a, a] += armature[v0 + a]
+        acc = tau[v0 + a]
+        for r in range(6):
+            acc -= S[r, a] * pB[r]
+        u[a] = acc
+    if not cholesky(D, d):
+        for a in range(d):
+            qdd[v0 + a] = np.nan
+        return
+    for r in range(6):                               # Z = U D^-1 (rows), u := D^-1 u
+        for c in range(d):
+            Z[r, c] = U[r, c]
+        cholesky_solve(D, Z[r], d)
+    cholesky_solve(D, u, d)
+    for r in range(6):                               # p_B^a = p_B + U D^-1 u
+        for c in range(d):
+            pB[r] += U[r, c] * u[c]
+    for r in range(6):
+        aA[r] = 0.0
+    if not fixed:
+        for r in range(6):                           # I_B^a = I_B - U D^-1 U^T
+            for c in range(6):
+                acc = IB[r, c]
+                for k in range(d):
+                    acc -= U[r, k] * Z[c, k]
+                Ia[r, c] = acc
+        K = IB
+        spatial_inertia(mass[A], com[A], inertia[A], col, K)
+        for c in range(6):                           # K = I_A + X^T I_B^a X
+            for r in range(6):
+                fp[r] = 1.0 if r == c else 0.0
+            motion_to_child(RF, pF, fp, m)
+            for r in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += Ia[r, k] * m[k]
+                col[r] = acc
+            for r in range(6):
+                fp[r] = 0.0
+            force_to_parent_add(RF, pF, col, fp)
+            for r in range(6):
+                K[r, c] += fp[r]
+        for r in range(6):
+            fp[r] = 0.0
+        force_to_parent_add(RF, pF, pB, fp)
+        for r in range(6):
+            aA[r] = -(pA[r] + fp[r])
+        if not cholesky(K, 6):
+            for a in range(d):
+                qdd[v0 + a] = np.nan
+            return
+        cholesky_solve(K, aA, 6)
+    motion_to_child(RF, pF, aA, m)                   # qdd = D^-1 (u - U^T X a_A)
+    for a in range(d):
+        acc = u[a]
+        for r in range(6):
+            acc -= Z[r, a] * m[r]
+        qdd[v0 + a] = acc
+
+
+@inlined
+def spatial_inertia(m, c, I, e, out):
+    """The spatial inertia (6, 6) at a body's origin of mass ``m``, centre of mass
+    ``c`` and inertia ``I`` about it, column by column from
+    :func:`~vdad.newton_euler.spatial_momentum`. ``e`` (6,): scratch."""
+    for col in range(6):
+        for r in range(6):
+            e[r] = 1.0 if r == col else 0.0
+        spatial_momentum(m, c, I, e, out[:, col])
 
 
 # --- refinement on the hybrid ((R6) of docs/accuracy.md) ----------------------------------
