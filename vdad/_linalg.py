@@ -286,6 +286,18 @@ def compose_pose(Ra, pa, R, p, t):
 
 
 @inlined
+def relative_pose(Ra, pa, R, p, oR, op):
+    """``(oR, op) = (Ra, pa)^-1 (R, p)``: a pose given in some frame, expressed in
+    frame ``a`` at pose ``(Ra, pa)`` in it: ``oR = Ra^T R``, ``op = Ra^T (p -
+    pa)``."""
+    for r in range(3):
+        op[r] = (Ra[0, r] * (p[0] - pa[0]) + Ra[1, r] * (p[1] - pa[1])
+                 + Ra[2, r] * (p[2] - pa[2]))
+        for s in range(3):
+            oR[r, s] = Ra[0, r] * R[0, s] + Ra[1, r] * R[1, s] + Ra[2, r] * R[2, s]
+
+
+@inlined
 def mm3(A, B, out):
     """``out = A B`` (3, 3)."""
     for i in range(3):

@@ -53,6 +53,7 @@ from ._linalg import (
     mv6,
     pass_kernel,
     port_transform,
+    relative_pose,
     symmetric_part,
 )
 from .dca import (
@@ -249,12 +250,7 @@ def group_leaf(F, tree, groups, gravity, kin, RF, pF, Rw, vF, impulse, hF, Phi, 
         if slot_side[s0 + a] > 0:
             port_transform(eye, zero, c, X[a])
             continue
-        for r in range(3):                        # (RF, pF)^-1 (R_rel, p_rel)
-            ph[r] = (RF[0, r] * (p_rel[k, 0] - pF[0]) + RF[1, r] * (p_rel[k, 1] - pF[1])
-                     + RF[2, r] * (p_rel[k, 2] - pF[2]))
-            for s in range(3):
-                Rh[r, s] = RF[0, r] * R_rel[k, 0, s] + RF[1, r] * R_rel[k, 1, s] \
-                    + RF[2, r] * R_rel[k, 2, s]
+        relative_pose(RF, pF, R_rel[k], p_rel[k], Rh, ph)
         port_transform(Rh, ph, c, X[a])
     f = tmp[1, 0]
     group_wrench(F, groups, gravity, Rw, vF, impulse, hF, f, tmp[4])
@@ -494,8 +490,9 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
     qd)`` already (:func:`cap_energy` of the step before computed them). On a
     model with raised leaves (``bodies[12]``, :func:`~vdad.dca.body_arrays`) the
     groups' leaves are raised and the accelerations refined on the hybrid
-    (:func:`refine_region`), the metric and look-ahead taken on the leaves.
-    Returns whether ``qdd`` is finite."""
+    (:func:`refine_region`, (R6) of ``docs/accuracy.md``) before the metric is
+    summed from them (the caller takes ``predictive`` off there). Returns whether
+    ``qdd`` is finite."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
     G = work[16]
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
@@ -736,12 +733,7 @@ def release_acceleration(F, nb, tree, js, groups, gravity, kin, f_J, tau, armatu
         elif slot_child[s] == A:
             force_to_parent_add(R_rel[k], p_rel[k], fp, pA)
         else:                                        # the port's pose in B's frame
-            for r in range(3):
-                ph[r] = (RF[0, r] * (p_rel[k, 0] - pF[0]) + RF[1, r] * (p_rel[k, 1] - pF[1])
-                         + RF[2, r] * (p_rel[k, 2] - pF[2]))
-                for c in range(3):
-                    Rh[r, c] = RF[0, r] * R_rel[k, 0, c] + RF[1, r] * R_rel[k, 1, c] \
-                        + RF[2, r] * R_rel[k, 2, c]
+            relative_pose(RF, pF, R_rel[k], p_rel[k], Rh, ph)
             force_to_parent_add(Rh, ph, fp, pB)
     spatial_inertia(mass[B], com[B], inertia[B], col, IB)
     for r in range(6):                               # U = I_B S
