@@ -59,24 +59,24 @@ def setups():
 
 
 @njit
-def _in_loop(k, codes, view, Rc, pc, nb, left, right, first, hybrid, since, R_top, p_top, poses,
-             body, cache, world, N1, N, moved, scratch):
+def _in_loop(k, codes, view, Rc, pc, nb, left, right, forest, first, hybrid, since, R_top, p_top,
+             poses, body, cache, world, N1, N, moved, scratch):
     """``k`` evaluations of :func:`vdad.visibility.region_bvh_pass` from compiled
     code, as the compiled adaptive steps call it once per frame (the active
     joints' poses ``R_top``, ``p_top`` given: the step computes them)."""
     for _ in range(k):
-        region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, since, R_top,
-                        p_top, poses, body, cache, world, N1, N, moved, scratch)
+        region_bvh_pass(codes, view, Rc, pc, nb, left, right, forest, first, hybrid, since,
+                        R_top, p_top, poses, body, cache, world, N1, N, moved, scratch)
 
 
 @njit
-def _placed_in_loop(k, codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
-                    grouped, scratch):
+def _placed_in_loop(k, codes, view, Rc, pc, nb, left, right, forest, body, R, p, world, N1, N,
+                    moved, grouped, scratch):
     """``k`` evaluations of :func:`vdad.visibility.cover`, every body's pose given
     (as a step of the full DCA has them; ``grouped``: none)."""
     for _ in range(k):
-        cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, grouped,
-              scratch)
+        cover(codes, view, Rc, pc, nb, left, right, forest, body, R, p, world, N1, N, moved,
+              grouped, scratch)
 
 
 def hybrids(model, tree, q):
@@ -95,7 +95,8 @@ def in_loop_calls(cov, q, k, adaptives):
     model, tree = cov.model, cov.tree
     constants, (_, views, Rc, pc) = cov.loop_coverage([0], [0.0], adaptives[-1])
     codes, first, poses, body, cache, world, N1, moved, scratch = constants
-    camera = (codes, tuple(views[0]), Rc[0], pc[0], model.nb, tree.arrays[0], tree.arrays[1])
+    camera = (codes, tuple(views[0]), Rc[0], pc[0], model.nb, tree.arrays[0], tree.arrays[1],
+              (tree.arrays[13], tree.arrays[14]))
     N = np.empty(tree.n_nodes + 1)
     calls = []
     for ad in adaptives:

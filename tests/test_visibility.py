@@ -8,14 +8,15 @@ import numpy as np
 import pytest
 from strategies import moved_pixels, node_bodies, random_configuration, random_tree
 
-from vdad import Body, Geom, Model, Simulator
+from vdad import Body, Geom, Model, Simulator, dca
 from vdad.adaptive import AdaptiveDynamics
 from vdad.assembly import AssemblyTree
 from vdad.bounding import areas, body_volumes, place
 from vdad.camera import Camera
 from vdad.errors import InputError, SimulationError
+from vdad.projection import box_scratch
 from vdad.scenes import pendulum
-from vdad.visibility import BoundingVolumes
+from vdad.visibility import ESTIMATES, BoundingVolumes, camera_arrays, cover_subtrees
 
 
 @pytest.mark.parametrize("volume", ["sphere", "obb"])
@@ -75,20 +76,55 @@ def test_moved_pixels_weight_a_node_by_the_bodies_its_joints_displace(seed):
     assert not np.allclose(N, moved_pixels(tree, per_body, floating=False))
 
 
+@pytest.mark.parametrize("volume", ["sphere", "obb", "aabb"])
+def test_a_large_forest_is_covered_on_threads_as_serially(volume):
+    """A forest of at least dca.PARALLEL_BODIES bodies is covered in runs of its
+    roots' subtrees on numba's threads (``forest_coverage``): under eq. 6 the
+    sums of the bodies' areas, and under every estimate, to the last bit, what
+    the serial pass of all subtrees gives."""
+    model = _with_spheres(random_tree(11, n=dca.PARALLEL_BODIES + 40, roots=24, springs=False))
+    tree = AssemblyTree.balanced(model)
+    assert len(tree.segments) - 1 == 24 and model.nb >= dca.PARALLEL_BODIES
+    q = random_configuration(model, np.random.default_rng(11))
+    camera = Camera(position=(0.0, -30.0, 5.0), target=(0.0, 0.0, 0.0), yfov=1.2)
+    R, p = Simulator(model, q).body_poses()
+    per_body = areas(place(body_volumes(model, volume), R, p), camera)
+    assert np.all(per_body > 0)
+    for estimate in ESTIMATES:
+        cov = BoundingVolumes(tree, camera, volume, estimate)
+        N = cov(0.0, q)
+        if estimate == "bodies":
+            np.testing.assert_allclose(
+                N, [per_body[node_bodies(tree, n)].sum() for n in range(tree.n_nodes)] + [0.0],
+                rtol=1e-12)
+        serial = np.full(tree.n_nodes + 1, np.nan)
+        serial[-1] = 0.0
+        world = tuple(np.zeros_like(a) for a in cov.world)
+        world[2][-1, 0] = -1.0
+        N1 = np.zeros(tree.n_nodes + 1)
+        view, Rc, pc = camera_arrays(camera)
+        cover_subtrees(0, len(tree.segments) - 1, cov._kind, ESTIMATES.index(estimate), view,
+                       Rc, pc, model.nb, tree.arrays[0], tree.arrays[1],
+                       (tree.arrays[13], tree.arrays[14]), cov.body, cov._kin.R, cov._kin.p,
+                       world, N1, serial, (np.zeros(0, bool), cov.local), box_scratch())
+        np.testing.assert_array_equal(N, serial)
+
+
 def _with_spheres(model):
     bodies = [replace(b, geoms=(Geom("sphere", (0.05 + 0.02 * i,)),))
               for i, b in enumerate(model.bodies)]
     return Model(bodies, model.joints, name=model.name)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2, 4, 5])
-def test_a_hybrid_places_its_bodies_from_their_groups(seed):
+@pytest.mark.parametrize("seed, n", [(0, 16), (1, 16), (2, 16), (4, 16), (5, 16),
+                                     (0, dca.PARALLEL_BODIES + 40)])    # the last on threads
+def test_a_hybrid_places_its_bodies_from_their_groups(seed, n):
     """With an adaptive region, the coverage that places every body takes the
     active joints' poses and the rigid groups' frames (``region_bvh_pass``, as the
     compiled steps evaluate it once per frame): the same ``N_M`` as the evaluation
     at ``q``, for every volume and every rule that covers every node, with rigid
     groups in a floating tree and a grounded one (a fixed tree rigid to the root)."""
-    model = _with_spheres(random_tree(seed, n=16, roots=2, composite=True, springs=False))
+    model = _with_spheres(random_tree(seed, n=n, roots=2, composite=True, springs=False))
     tree = AssemblyTree.balanced(model)
     q = random_configuration(model, np.random.default_rng(seed))
     ad = AdaptiveDynamics(model, 1e-3, tree, threshold=0.0)

@@ -928,6 +928,14 @@ def subtree_passes(lo, hi, nb, js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtW
 PARALLEL_BODIES = 256
 
 
+@inlined
+def in_parallel(nb, segments):
+    """Whether a forest of ``nb`` bodies whose root subtrees start at
+    ``segments`` (roots + 1,) runs them on numba's threads: two roots or more and
+    :data:`PARALLEL_BODIES` bodies."""
+    return segments.shape[0] > 2 and nb >= PARALLEL_BODIES
+
+
 @parallel_kernel
 def forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J, qdd,
                   G, P):
@@ -954,7 +962,7 @@ def dynamics_pass(js, tree, bodies, q, qd, tau_in, f_ext, kin, work):
     for r in range(tau_in.shape[0]):
         tau[r] += tau_in[r]
     nb, segments = bodies[0].shape[0], tree[14]
-    if segments.shape[0] > 2 and nb >= PARALLEL_BODIES:
+    if in_parallel(nb, segments):
         forest_passes(js, tree, bodies, f_ext, kin, tau, Phi, b, Y, WtWm, PF, beta, gamma, f_J,
                       qdd, G, X.shape[0])
     else:

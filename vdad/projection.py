@@ -382,13 +382,15 @@ def box_area(view, Rc, pc, c, R, h, corners, xy, P, Q):
     return area
 
 
-# --- batches -------------------------------------------------------------------------------
-
+@kernel
 def box_scratch():
-    """Scratch arrays of :func:`box_area`: corners, their pixels, two polygons."""
+    """Scratch arrays of :func:`box_area`: corners, their pixels, two polygons
+    (compiled: the parallel passes allocate one per thread)."""
     return (np.empty((8, 3)), np.empty((8, 2)), np.empty((MAX_VERTICES, 3)),
             np.empty((MAX_VERTICES, 3)))
 
+
+# --- batches -------------------------------------------------------------------------------
 
 def sphere_areas(camera, center, radius):
     """Projected areas (k,) in pixels of spheres with centres ``center`` (k, 3) in

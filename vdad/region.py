@@ -1393,10 +1393,10 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                 placed = True
             v = views[f]
             region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
-                            tree[1], first, (region[4], counts[N_VISIT], active, groups[4],
-                                             top, groups[5], groups[6]), region[3],
-                            kin[5], kin[6], poses, volumes, cache, world, N1, region[17], moved,
-                            scratch)
+                            tree[1], (tree[13], tree[14]), first,
+                            (region[4], counts[N_VISIT], active, groups[4], top, groups[5],
+                             groups[6]), region[3], kin[5], kin[6], poses, volumes, cache, world,
+                            N1, region[17], moved, scratch)
             f += 1
         for i in range(q.shape[0]):
             q_last[i] = q[i]

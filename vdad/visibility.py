@@ -30,9 +30,11 @@ those volumes kept in their group frames rather than merged.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
+from numba import prange
 
-from ._linalg import as_input, compiling, inlined, pass_kernel
+from ._linalg import as_input, compiling, inlined, parallel_kernel, pass_kernel
 from .bounding import (
     KIND_CODE,
     OBB,
@@ -46,6 +48,7 @@ from .bounding import (
     volume_area,
 )
 from .camera import camera_at, check_path, check_resolution
+from .dca import in_parallel
 from .errors import InputError
 from .hybrid import child_slot, group_poses
 from .kinematics import Kinematics, kinematics_pass, plan, world_poses
@@ -116,8 +119,8 @@ def combine(estimate, N1, N2):
 
 
 @pass_kernel
-def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
-                  grouped, scratch):
+def coverage_pass(kind, estimate, runs, view, Rc, pc, nb, left, right, forest, body, R, p, world,
+                  N1, N, grouped, scratch):
     """``N_M`` of every node (Kim 2008 §5.3, eqs. 5-7) into ``N`` (n_nodes + 1,):
     the bodies' volumes ``body`` (packed ``c, R, h``, body frames) placed at their
     world poses ``R``, ``p``, their areas; bottom-up, each internal node's volume
@@ -133,16 +136,66 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
     :func:`refresh_group`, placed at that frame's pose ``R[n]``, ``p[n]``
     (:func:`~vdad.hybrid.group_poses`) instead of merged: the merge commutes
     with placement, so the two agree to rounding, and a placement costs less than
-    half a merge. ``scratch``: :func:`~vdad.projection.box_scratch`."""
+    half a merge. ``forest`` = (post, segments) of the tree: each root's subtree
+    in post-order, on numba's threads for a large forest as the DCA's, in
+    ``runs`` runs of roots (:func:`forest_coverage`). ``scratch``:
+    :func:`~vdad.projection.box_scratch`."""
+    n_nodes = nb + left.shape[0]
+    world[2][n_nodes, 0] = -1.0
+    N[n_nodes] = 0.0
+    N1[n_nodes] = 0.0
+    if in_parallel(nb, forest[1]):
+        forest_coverage(kind, estimate, runs, view, Rc, pc, nb, left, right, forest, body, R, p,
+                        world, N1, N, grouped)
+    else:
+        cover_subtrees(0, forest[1].shape[0] - 1, kind, estimate, view, Rc, pc, nb, left, right,
+                       forest, body, R, p, world, N1, N, grouped, scratch)
+
+
+@parallel_kernel
+def forest_coverage(kind, estimate, runs, view, Rc, pc, nb, left, right, forest, body, R, p,
+                    world, N1, N, grouped):
+    """:func:`cover_subtrees` of a forest's root subtrees on numba's threads, in
+    ``runs`` (the caller's ``numba.get_num_threads()``: called here, it would
+    keep the kernel out of the cache) runs of consecutive roots of about equal
+    node counts, each with its own scratch; each writes only its own nodes'
+    slots."""
+    post, segments = forest       # tuples of arrays unpacked outside the parallel loop:
+    bc, bR, bh = body             # numba's parallel lowering takes them for scalars
+    c, Rv, h = world
+    active, (lc, lR, lh) = grouped
+    for r in prange(runs):
+        cover_subtrees(first_root(segments, r, runs), first_root(segments, r + 1, runs), kind,
+                       estimate, view, Rc, pc, nb, left, right, (post, segments), (bc, bR, bh),
+                       R, p, (c, Rv, h), N1, N, (active, (lc, lR, lh)), box_scratch())
+
+
+@inlined
+def first_root(segments, r, runs):
+    """The first root of run ``r`` of ``runs`` (``runs``: the number of roots): the
+    first whose subtree starts at or after the fraction ``r / runs`` of the nodes."""
+    roots, total = segments.shape[0] - 1, segments[-1]
+    k = 0
+    while k < roots and segments[k] * runs < r * total:
+        k += 1
+    return k
+
+
+@pass_kernel
+def cover_subtrees(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest, body, R, p,
+                   world, N1, N, grouped, scratch):
+    """:func:`coverage_pass` of the subtrees of roots ``r0`` to ``r1 - 1``: their
+    nodes in post-order (children first), then their ``N_M``. Compiled as a call
+    of its own (not inlined), as :func:`vdad.dca.subtree_passes`: numba's
+    parallel analysis fails on the inlined volume kernels."""
     bc, bR, bh = body
     c, Rv, h = world
     active, (lc, lR, lh) = grouped
+    post, segments = forest
     from_groups = kind == OBB and active.shape[0] > 0
     n_nodes = nb + left.shape[0]
-    h[n_nodes, 0] = -1.0
-    N[n_nodes] = 0.0
-    N1[n_nodes] = 0.0
-    for n in range(n_nodes):             # bodies, then internal nodes (children first)
+    for k in range(segments[r0], segments[r1]):
+        n = post[k]
         if n < nb:
             place_volume(kind, bc[n], bR[n], bh[n], R[n], p[n], c[n], Rv[n], h[n])
         else:
@@ -162,42 +215,44 @@ def coverage_pass(kind, estimate, view, Rc, pc, nb, left, right, body, R, p, wor
         N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], scratch)
         if n < nb:
             N[n] = N1[n]
-    for n in range(n_nodes):
+    for k in range(segments[r0], segments[r1]):
+        n = post[k]
         N[n] = combine(estimate, N1[n], N[n])
 
 
 @inlined
-def cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, grouped,
-          scratch):
+def cover(codes, view, Rc, pc, nb, left, right, forest, body, R, p, world, N1, N, moved,
+          grouped, scratch):
     """Kim 2008 §5.3, eqs. 5-7, of the whole tree from the bodies' world poses
     ``R``, ``p`` into ``N`` (n_nodes + 1,): :func:`coverage_pass`, then, under the
-    moved-pixels rule, :func:`moved_pass` (``moved`` its arrays). ``codes`` (3,):
-    volume kind, estimate, moved rule (0/1); ``grouped``: the rigid groups'
-    volumes of :func:`coverage_pass`; ``scratch`` = (a 3 x 3 work matrix,
-    :func:`~vdad.projection.box_scratch`)."""
-    coverage_pass(codes[0], codes[1], view, Rc, pc, nb, left, right, body, R, p, world, N1, N,
-                  grouped, scratch[1])
+    moved-pixels rule, :func:`moved_pass` (``moved`` its arrays). ``codes`` (4,):
+    volume kind, estimate, moved rule (0/1), runs of a forest's subtrees on
+    threads (:func:`coverage_pass`); ``forest`` (post, segments) and
+    ``grouped`` (the rigid groups' volumes): of :func:`coverage_pass`;
+    ``scratch`` = (a 3 x 3 work matrix, :func:`~vdad.projection.box_scratch`)."""
+    coverage_pass(codes[0], codes[1], codes[3], view, Rc, pc, nb, left, right, forest, body, R,
+                  p, world, N1, N, grouped, scratch[1])
     if codes[2]:
         parent, root, floating, _, _, joint, sums = moved
         moved_pass(nb, parent, root, floating, left, right, joint, sums, N)
 
 
 @pass_kernel
-def bvh_pass(codes, view, Rc, pc, nb, js, q, kin, left, right, body, world, N1, N, moved,
-             grouped, scratch):
+def bvh_pass(codes, view, Rc, pc, nb, js, q, kin, left, right, forest, body, world, N1, N,
+             moved, grouped, scratch):
     """:func:`cover` at configuration ``q`` (nq,), every body placed by
     :func:`~vdad.kinematics.kinematics_pass` (poses only, into ``kin``; rigid joints
     keep their ``q``): the evaluation of :class:`BoundingVolumes` without an
     adaptive region (``grouped``: an empty ``active``, every node merged)."""
     R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work = kin
     kinematics_pass(js, q, q, False, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work)
-    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved, grouped,
-          scratch)
+    cover(codes, view, Rc, pc, nb, left, right, forest, body, R, p, world, N1, N, moved,
+          grouped, scratch)
 
 
 @pass_kernel
-def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, since, R_top, p_top,
-                    poses, body, cache, world, N1, N, moved, scratch):
+def region_bvh_pass(codes, view, Rc, pc, nb, left, right, forest, first, hybrid, since, R_top,
+                    p_top, poses, body, cache, world, N1, N, moved, scratch):
     """:func:`cover` of a hybrid body: every body placed from the poses ``R_top``,
     ``p_top`` (nb, ...) of the active joints' child bodies that a step of
     adaptive dynamics computes, the rigid groups' bodies from their group's
@@ -220,7 +275,7 @@ def region_bvh_pass(codes, view, Rc, pc, nb, left, right, first, hybrid, since, 
             if not active[visit[e]]:
                 refresh_group(codes[0], nb, left, right, first, visit[e], rel_R, rel_p, since,
                               local, stamp, tmp)
-    cover(codes, view, Rc, pc, nb, left, right, body, R, p, world, N1, N, moved,
+    cover(codes, view, Rc, pc, nb, left, right, forest, body, R, p, world, N1, N, moved,
           (active, local), scratch)
 
 
@@ -311,7 +366,7 @@ def idle_loop_coverage(tree):
     once."""
     box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
     cache = (box, np.zeros(1), tuple(a[0] for a in box))
-    constants = (np.zeros(3, np.int64), np.zeros(1, np.int64), box[1:], box, cache, box,
+    constants = (np.zeros(4, np.int64), np.zeros(1, np.int64), box[1:], box, cache, box,
                  np.zeros(1), moved_arrays(tree), (np.empty((3, 3)), box_scratch()))
     return _empty_like(constants), _frames([], [])
 
@@ -404,6 +459,7 @@ class BoundingVolumes(_Coverage):
         nb, n = self.model.nb, tree.n_nodes
         self.body = pack(body_volumes(self.model, volume))                # body frames
         self._left, self._right = tree.arrays[0], tree.arrays[1]
+        self._forest = tree.arrays[13], tree.arrays[14]                  # post, segments
         # node volumes in world coordinates, and in their rigid group's frame (valid
         # while stamp == adaptive.since, for the adaptive region whose since array
         # is _bound); the last slot is the ground, empty
@@ -420,7 +476,7 @@ class BoundingVolumes(_Coverage):
         self._poses = (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)))   # group_poses' out
         self._scratch = (np.empty((3, 3)), box_scratch())
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
-                                pixels == "moved"], np.int64)
+                                pixels == "moved", 1], np.int64)   # [3]: set at each call
 
     @property
     def covers_every_node(self):
@@ -432,20 +488,21 @@ class BoundingVolumes(_Coverage):
         cam = self.camera(t)
         view, (Rc, pc) = view_of(cam), camera_pose(cam)
         nb, N = self.model.nb, np.empty(self.tree.n_nodes + 1)
+        self._codes[3] = numba.get_num_threads()
         if adaptive is None:             # every body placed at q (rigid joints keep their q)
             with compiling(bvh_pass):
                 bvh_pass(self._codes, view, Rc, pc, nb, plan(self.model).arrays, as_input(q),
-                         self._kin.arrays, self._left, self._right, self.body, self.world,
-                         self._N1, N, self._moved, self._ungrouped, self._scratch)
+                         self._kin.arrays, self._left, self._right, self._forest, self.body,
+                         self.world, self._N1, N, self._moved, self._ungrouped, self._scratch)
             return N
         self._bind(adaptive)
         if self.covers_every_node:       # eqs. 6-7 and world boxes place every body
             kin = adaptive.front_kinematics(q)
             with compiling(region_bvh_pass):
                 region_bvh_pass(self._codes, view, Rc, pc, nb, self._left, self._right,
-                                self.tree.first, adaptive.group_frames, adaptive.since, kin.R,
-                                kin.p, self._poses, self.body, self._cache, self.world, self._N1,
-                                N, self._moved, self._scratch)
+                                self._forest, self.tree.first, adaptive.group_frames,
+                                adaptive.since, kin.R, kin.p, self._poses, self.body, self._cache,
+                                self.world, self._N1, N, self._moved, self._scratch)
             return N
         front, act = adaptive.front, adaptive.act
         self._refresh(front, adaptive)
@@ -465,6 +522,7 @@ class BoundingVolumes(_Coverage):
         if not self.covers_every_node:
             return None
         self._bind(adaptive)
+        self._codes[3] = numba.get_num_threads()
         constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
                      self.world, self._N1, self._moved, self._scratch)
         return constants, _frames(steps, [self._camera_arrays(t) for t in times])
