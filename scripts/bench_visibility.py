@@ -105,7 +105,7 @@ def in_loop_calls(cov, q, k, adaptives):
                          N1, N, moved, scratch)
         calls.append(lambda a=args: _in_loop(k, *a))
     R, p = vdad.Simulator(model, q).body_poses()
-    args = camera + (body, R, p, world, N1, N, moved, (np.zeros(0, bool), cache[0]), scratch)
+    args = camera + (body, R, p, world, N1, N, moved, cov._ungrouped, scratch)
     return calls + [lambda: _placed_in_loop(k, *args)]
 
 

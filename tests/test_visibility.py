@@ -14,9 +14,8 @@ from vdad.assembly import AssemblyTree
 from vdad.bounding import areas, body_volumes, place
 from vdad.camera import Camera
 from vdad.errors import InputError, SimulationError
-from vdad.projection import box_scratch
 from vdad.scenes import pendulum
-from vdad.visibility import ESTIMATES, BoundingVolumes, camera_arrays, cover_subtrees
+from vdad.visibility import ESTIMATES, BoundingVolumes, camera_arrays, coverage_pass
 
 
 @pytest.mark.parametrize("volume", ["sphere", "obb"])
@@ -103,10 +102,10 @@ def test_a_large_forest_is_covered_on_threads_as_serially(volume):
         world[2][-1, 0] = -1.0
         N1 = np.zeros(tree.n_nodes + 1)
         view, Rc, pc = camera_arrays(camera)
-        cover_subtrees(0, len(tree.segments) - 1, cov._kind, ESTIMATES.index(estimate), view,
+        coverage_pass(0, len(tree.segments) - 1, cov._kind, ESTIMATES.index(estimate), view,
                        Rc, pc, model.nb, tree.arrays[0], tree.arrays[1],
                        (tree.arrays[13], tree.arrays[14]), cov.body, cov._kin.R, cov._kin.p,
-                       world, N1, serial, (np.zeros(0, bool), cov.local), box_scratch())
+                       world, N1, serial, cov._ungrouped, cov._scratch)
         np.testing.assert_array_equal(N, serial)
 
 

@@ -423,8 +423,9 @@ class AdaptiveDynamics:
             tree, nb = self.tree, self.model.nb
             R, p = np.empty((tree.n_nodes + 1, 3, 3)), np.empty((tree.n_nodes + 1, 3))
             with compiling(group_poses):
-                group_poses(nb, tree.arrays[0], tree.arrays[1], tree.first, *self.group_frames,
-                            kin.R, kin.p, R, p, np.empty((3, 3)))
+                group_poses(nb, tree.arrays[0], tree.arrays[1],
+                            (tree.arrays[13], tree.arrays[14]), *self.group_frames, kin.R, kin.p,
+                            R, p, np.empty((3, 3)))
             return R[:nb], p[:nb]
         bodies = np.asarray(bodies, int)
         _, R, p = self.groups.pose_in_group(bodies, self.active, (self._top, kin.R, kin.p))

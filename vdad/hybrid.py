@@ -323,19 +323,25 @@ def carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order):
 
 
 @inlined
-def group_poses(nb, left, right, first, visit, n_visit, active, grounded, top, rel_R, rel_p,
+def group_poses(nb, left, right, forest, visit, n_visit, active, grounded, top, rel_R, rel_p,
                 R_top, p_top, R, p, t):
     """World poses ``R`` (n_nodes + 1, 3, 3), ``p`` (n_nodes + 1, 3) of every body
-    of the hybrid, top-down from the front: each front node ``F`` (the entries of
-    ``visit[:n_visit]`` that are not active) at its group's frame (the world if
-    ``grounded``, else the pose ``R_top``, ``p_top`` of its ``top`` body), then
-    down its subtree (internal ids ``first[F - nb]`` to ``F - nb``, parents first):
-    an ``A`` child in its parent's frame, the top body of a ``B`` child at
-    ``rel_R``, ``rel_p`` in it. Rows ``nb`` on hold the internal nodes' frames, the
-    last the ground's (scratch); ``t`` (3, 3) scratch. One pose copy per body and
-    one composition per internal node of a group: O(bodies), against
-    :func:`poses_in_groups`' O(depth) per body."""
-    n_nodes = nb + left.shape[0]
+    of the hybrid, top-down from the front: each front node at its group's frame
+    (:func:`front_frames`), then down every rigid group (:func:`down_groups`
+    of every root's subtree; ``forest`` = (post, segments) of the tree). Rows
+    ``nb`` on hold the internal nodes' frames; ``t`` (3, 3) scratch. One pose
+    copy per body and one composition per internal node of a group: O(bodies),
+    against :func:`poses_in_groups`' O(depth) per body."""
+    front_frames(nb, visit, n_visit, active, grounded, top, R_top, p_top, R, p)
+    down_groups(0, forest[1].shape[0] - 1, nb, left, right, forest, active, rel_R, rel_p, R, p,
+                t)
+
+
+@inlined
+def front_frames(nb, visit, n_visit, active, grounded, top, R_top, p_top, R, p):
+    """The world pose ``R[F]``, ``p[F]`` of each front node ``F`` (the entries of
+    ``visit[:n_visit]`` that are not active): its group's frame, the world if
+    ``grounded``, else the pose ``R_top``, ``p_top`` of its ``top`` body."""
     for e in range(n_visit):
         F = visit[e]
         if F >= nb and active[F]:
@@ -344,11 +350,25 @@ def group_poses(nb, left, right, first, visit, n_visit, active, grounded, top, r
             identity_pose(R[F], p[F])
         else:
             copy_pose(R_top[top[F]], p_top[top[F]], R[F], p[F])
-        if F < nb:
+
+
+@inlined
+def down_groups(r0, r1, nb, left, right, forest, active, rel_R, rel_p, R, p, t):
+    """Down the rigid groups of the subtrees of roots ``r0`` to ``r1 - 1``
+    (``forest`` = (post, segments): their nodes in reverse post-order, parents
+    first), from their front nodes' poses (:func:`front_frames`): each internal
+    node that is not active places its children, an ``A`` child in its own
+    frame, the top body of a ``B`` child at ``rel_R``, ``rel_p`` in it (the
+    ground, a child -1, has no pose); ``t`` (3, 3) scratch."""
+    post, segments = forest
+    for k in range(segments[r1] - 1, segments[r0] - 1, -1):
+        C = post[k]
+        if C < nb or active[C]:
             continue
-        for m in range(F - nb, first[F - nb] - 1, -1):
-            C, A, B = nb + m, child_slot(left[m], n_nodes), child_slot(right[m], n_nodes)
+        A, B = left[C - nb], right[C - nb]
+        if A >= 0:
             copy_pose(R[C], p[C], R[A], p[A])
+        if B >= 0:
             copy_pose(rel_R[C], rel_p[C], R[B], p[B])
             compose_pose(R[C], p[C], R[B], p[B], t)
 

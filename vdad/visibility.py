@@ -50,7 +50,7 @@ from .bounding import (
 from .camera import camera_at, check_path, check_resolution
 from .dca import in_parallel
 from .errors import InputError
-from .hybrid import child_slot, group_poses
+from .hybrid import child_slot, down_groups, front_frames
 from .kinematics import Kinematics, kinematics_pass, plan, world_poses
 from .projection import box_scratch, view_of
 
@@ -119,81 +119,42 @@ def combine(estimate, N1, N2):
 
 
 @pass_kernel
-def coverage_pass(kind, estimate, runs, view, Rc, pc, nb, left, right, forest, body, R, p, world,
-                  N1, N, grouped, scratch):
-    """``N_M`` of every node (Kim 2008 §5.3, eqs. 5-7) into ``N`` (n_nodes + 1,):
-    the bodies' volumes ``body`` (packed ``c, R, h``, body frames) placed at their
-    world poses ``R``, ``p``, their areas; bottom-up, each internal node's volume
-    merged from its children's into ``world`` (n_nodes + 1 slots, the last an
-    empty ground) and its area ``N1``, and its bodies' total (``N``, then
-    combined). Camera: world pose ``Rc``, ``pc``, intrinsics ``view``. Under
-    eq. 7 a node's area is not computed where its bodies' total is below its
-    children's areas (``docs/visibility.md``, "Areas that eq. 7 skips"): its
-    volume holds theirs, so its area is at least the larger, and ``N_M`` is the
-    total; ``N1`` keeps that bound. ``grouped`` = (active (N,), local): with
-    ``active`` not empty, an oriented box of an internal node inside a rigid
-    group (not active) is its volume ``local`` in its own frame, kept by
-    :func:`refresh_group`, placed at that frame's pose ``R[n]``, ``p[n]``
-    (:func:`~vdad.hybrid.group_poses`) instead of merged: the merge commutes
-    with placement, so the two agree to rounding, and a placement costs less than
-    half a merge. ``forest`` = (post, segments) of the tree: each root's subtree
-    in post-order, on numba's threads for a large forest as the DCA's, in
-    ``runs`` runs of roots (:func:`forest_coverage`). ``scratch``:
-    :func:`~vdad.projection.box_scratch`."""
-    n_nodes = nb + left.shape[0]
-    world[2][n_nodes, 0] = -1.0
-    N[n_nodes] = 0.0
-    N1[n_nodes] = 0.0
-    if in_parallel(nb, forest[1]):
-        forest_coverage(kind, estimate, runs, view, Rc, pc, nb, left, right, forest, body, R, p,
-                        world, N1, N, grouped)
-    else:
-        cover_subtrees(0, forest[1].shape[0] - 1, kind, estimate, view, Rc, pc, nb, left, right,
-                       forest, body, R, p, world, N1, N, grouped, scratch)
-
-
-@parallel_kernel
-def forest_coverage(kind, estimate, runs, view, Rc, pc, nb, left, right, forest, body, R, p,
-                    world, N1, N, grouped):
-    """:func:`cover_subtrees` of a forest's root subtrees on numba's threads, in
-    ``runs`` (the caller's ``numba.get_num_threads()``: called here, it would
-    keep the kernel out of the cache) runs of consecutive roots of about equal
-    node counts, each with its own scratch; each writes only its own nodes'
-    slots."""
-    post, segments = forest       # tuples of arrays unpacked outside the parallel loop:
-    bc, bR, bh = body             # numba's parallel lowering takes them for scalars
-    c, Rv, h = world
-    active, (lc, lR, lh) = grouped
-    for r in prange(runs):
-        cover_subtrees(first_root(segments, r, runs), first_root(segments, r + 1, runs), kind,
-                       estimate, view, Rc, pc, nb, left, right, (post, segments), (bc, bR, bh),
-                       R, p, (c, Rv, h), N1, N, (active, (lc, lR, lh)), box_scratch())
-
-
-@inlined
-def first_root(segments, r, runs):
-    """The first root of run ``r`` of ``runs`` (``runs``: the number of roots): the
-    first whose subtree starts at or after the fraction ``r / runs`` of the nodes."""
-    roots, total = segments.shape[0] - 1, segments[-1]
-    k = 0
-    while k < roots and segments[k] * runs < r * total:
-        k += 1
-    return k
-
-
-@pass_kernel
-def cover_subtrees(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest, body, R, p,
-                   world, N1, N, grouped, scratch):
-    """:func:`coverage_pass` of the subtrees of roots ``r0`` to ``r1 - 1``: their
-    nodes in post-order (children first), then their ``N_M``. Compiled as a call
-    of its own (not inlined), as :func:`vdad.dca.subtree_passes`: numba's
-    parallel analysis fails on the inlined volume kernels."""
+def coverage_pass(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest, body, R, p,
+                  world, N1, N, grouped, scratch):
+    """``N_M`` (Kim 2008 §5.3, eqs. 5-7) of the nodes of the subtrees of roots
+    ``r0`` to ``r1 - 1`` into ``N`` (n_nodes + 1,), in post-order (children
+    first; ``forest`` = (post, segments) of the tree): the bodies' volumes
+    ``body`` (packed ``c, R, h``, body frames) placed at their world poses ``R``,
+    ``p``, their areas; each internal node's volume merged from its children's
+    into ``world`` (n_nodes + 1 slots, the last an empty ground) and its area
+    ``N1``, and its bodies' total (``N``, then combined). Camera: world pose
+    ``Rc``, ``pc``, intrinsics ``view``. Under eq. 7 a node's area is not
+    computed where its bodies' total is below its children's areas
+    (``docs/visibility.md``, "Areas that eq. 7 skips"): its volume holds
+    theirs, so its area is at least the larger, and ``N_M`` is the total;
+    ``N1`` keeps that bound. ``grouped`` = (active (N,), local, rel_R, rel_p):
+    with ``active`` not empty, the poses ``R``, ``p`` (n_nodes + 1, ...) hold
+    the front nodes' only (:func:`~vdad.hybrid.front_frames`), and the rigid
+    groups' bodies and internal nodes are placed first, top-down from them
+    (:func:`~vdad.hybrid.down_groups`); and an oriented box of an internal node
+    inside a rigid group (not active) is its volume ``local`` in its own frame,
+    kept by :func:`refresh_group`, placed at that frame's pose ``R[n]``,
+    ``p[n]`` instead of merged: the merge commutes with placement, so the two
+    agree to rounding, and a placement costs less than half a merge.
+    ``scratch`` = (a 3 x 3 work matrix, :func:`~vdad.projection.box_scratch`).
+    Compiled as a call of its own, as :func:`vdad.dca.subtree_passes`:
+    :func:`forest_coverage` calls it on threads, and numba's parallel analysis
+    fails on the volume kernels inlined."""
     bc, bR, bh = body
     c, Rv, h = world
-    active, (lc, lR, lh) = grouped
+    active, (lc, lR, lh), rel_R, rel_p = grouped
     post, segments = forest
-    from_groups = kind == OBB and active.shape[0] > 0
+    grouped_on = active.shape[0] > 0
+    from_groups = kind == OBB and grouped_on
     n_nodes = nb + left.shape[0]
+    if grouped_on:
+        down_groups(r0, r1, nb, left, right, forest, active, rel_R, rel_p, R, p, scratch[0])
+    box = scratch[1]
     for k in range(segments[r0], segments[r1]):
         n = post[k]
         if n < nb:
@@ -212,7 +173,7 @@ def cover_subtrees(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest
                 if N[n] < (1.0 - SKIP_MARGIN) * bound:
                     N1[n] = bound
                     continue
-        N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], scratch)
+        N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], box)
         if n < nb:
             N[n] = N1[n]
     for k in range(segments[r0], segments[r1]):
@@ -220,18 +181,56 @@ def cover_subtrees(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest
         N[n] = combine(estimate, N1[n], N[n])
 
 
+@parallel_kernel
+def forest_coverage(kind, estimate, runs, view, Rc, pc, nb, left, right, forest, body, R, p,
+                    world, N1, N, grouped):
+    """:func:`coverage_pass` of a forest's root subtrees on numba's threads, in
+    ``runs`` (the caller's ``numba.get_num_threads()``: called here, it would
+    keep the kernel out of the cache) runs of consecutive roots of about equal
+    node counts, each with its own scratch; each writes only its own nodes'
+    slots."""
+    post, segments = forest       # tuples of arrays unpacked outside the parallel loop:
+    bc, bR, bh = body             # numba's parallel lowering takes them for scalars
+    c, Rv, h = world
+    active, (lc, lR, lh), rel_R, rel_p = grouped
+    for r in prange(runs):
+        coverage_pass(first_root(segments, r, runs), first_root(segments, r + 1, runs), kind,
+                      estimate, view, Rc, pc, nb, left, right, (post, segments), (bc, bR, bh),
+                      R, p, (c, Rv, h), N1, N, (active, (lc, lR, lh), rel_R, rel_p),
+                      (np.empty((3, 3)), box_scratch()))
+
+
+@inlined
+def first_root(segments, r, runs):
+    """The first root of run ``r`` of ``runs`` (``runs``: the number of roots): the
+    first whose subtree starts at or after the fraction ``r / runs`` of the nodes."""
+    roots, total = segments.shape[0] - 1, segments[-1]
+    k = 0
+    while k < roots and segments[k] * runs < r * total:
+        k += 1
+    return k
+
+
 @inlined
 def cover(codes, view, Rc, pc, nb, left, right, forest, body, R, p, world, N1, N, moved,
           grouped, scratch):
     """Kim 2008 §5.3, eqs. 5-7, of the whole tree from the bodies' world poses
-    ``R``, ``p`` into ``N`` (n_nodes + 1,): :func:`coverage_pass`, then, under the
-    moved-pixels rule, :func:`moved_pass` (``moved`` its arrays). ``codes`` (4,):
-    volume kind, estimate, moved rule (0/1), runs of a forest's subtrees on
-    threads (:func:`coverage_pass`); ``forest`` (post, segments) and
-    ``grouped`` (the rigid groups' volumes): of :func:`coverage_pass`;
-    ``scratch`` = (a 3 x 3 work matrix, :func:`~vdad.projection.box_scratch`)."""
-    coverage_pass(codes[0], codes[1], codes[3], view, Rc, pc, nb, left, right, forest, body, R,
-                  p, world, N1, N, grouped, scratch[1])
+    ``R``, ``p`` into ``N`` (n_nodes + 1,): :func:`coverage_pass` of every root's
+    subtree (of a large forest, in ``codes[3]`` runs on numba's threads as the
+    DCA's: :func:`forest_coverage`), then, under the moved-pixels rule,
+    :func:`moved_pass` (``moved`` its arrays). ``codes`` (4,): volume kind,
+    estimate, moved rule (0/1), runs; ``forest`` (post, segments) and
+    ``grouped`` (the rigid groups), ``scratch``: of :func:`coverage_pass`."""
+    n_nodes = nb + left.shape[0]
+    world[2][n_nodes, 0] = -1.0                 # the ground: empty, no pixels
+    N[n_nodes] = 0.0
+    N1[n_nodes] = 0.0
+    if in_parallel(nb, forest[1]):
+        forest_coverage(codes[0], codes[1], codes[3], view, Rc, pc, nb, left, right, forest,
+                        body, R, p, world, N1, N, grouped)
+    else:
+        coverage_pass(0, forest[1].shape[0] - 1, codes[0], codes[1], view, Rc, pc, nb, left,
+                      right, forest, body, R, p, world, N1, N, grouped, scratch)
     if codes[2]:
         parent, root, floating, _, _, joint, sums = moved
         moved_pass(nb, parent, root, floating, left, right, joint, sums, N)
@@ -256,27 +255,26 @@ def region_bvh_pass(codes, view, Rc, pc, nb, left, right, forest, first, hybrid,
     """:func:`cover` of a hybrid body: every body placed from the poses ``R_top``,
     ``p_top`` (nb, ...) of the active joints' child bodies that a step of
     adaptive dynamics computes, the rigid groups' bodies from their group's
-    (:func:`~vdad.hybrid.group_poses`, into ``poses`` = (R (n_nodes + 1, 3, 3),
-    p (n_nodes + 1, 3))). ``hybrid`` = (visit, n_visit, active, grounded, top,
-    rel_R, rel_p): the region's front and the groups' frames; ``first``: each
-    internal node's first internal id. Oriented boxes: the volumes of the rigid
-    groups' internal nodes placed from their frames (:func:`coverage_pass`),
-    stale ones refreshed first (``cache`` = (local, stamp, tmp) of
-    :func:`refresh_group`). The
-    evaluation of :class:`BoundingVolumes` with an adaptive region, once per frame
-    inside the compiled adaptive steps (``vdad.region.region_steps``)."""
+    (:func:`~vdad.hybrid.front_frames` here, then :func:`coverage_pass`, into
+    ``poses`` = (R (n_nodes + 1, 3, 3), p (n_nodes + 1, 3))). ``hybrid`` =
+    (visit, n_visit, active, grounded, top, rel_R, rel_p): the region's front
+    and the groups' frames; ``first``: each internal node's first internal id.
+    Oriented boxes: the volumes of the rigid groups' internal nodes placed from
+    their frames (:func:`coverage_pass`), stale ones refreshed first (``cache``
+    = (local, stamp, tmp) of :func:`refresh_group`). The evaluation of
+    :class:`BoundingVolumes` with an adaptive region, once per frame inside the
+    compiled adaptive steps (``vdad.region.region_steps``)."""
     visit, n_visit, active, grounded, top, rel_R, rel_p = hybrid
     local, stamp, tmp = cache
     R, p = poses
-    group_poses(nb, left, right, first, visit, n_visit, active, grounded, top, rel_R, rel_p,
-                R_top, p_top, R, p, scratch[0])
+    front_frames(nb, visit, n_visit, active, grounded, top, R_top, p_top, R, p)
     if codes[0] == OBB:
         for e in range(n_visit):
             if not active[visit[e]]:
                 refresh_group(codes[0], nb, left, right, first, visit[e], rel_R, rel_p, since,
                               local, stamp, tmp)
     cover(codes, view, Rc, pc, nb, left, right, forest, body, R, p, world, N1, N, moved,
-          (active, local), scratch)
+          (active, local, rel_R, rel_p), scratch)
 
 
 @pass_kernel
@@ -470,10 +468,11 @@ class BoundingVolumes(_Coverage):
         self.local[2][nb:] = -1.0
         self.stamp = np.full(n + 1, np.nan)
         self._bound = None
-        self._ungrouped = (np.zeros(0, bool), self.local)     # bvh_pass: every node merged
+        self._ungrouped = (np.zeros(0, bool), self.local, np.zeros((0, 3, 3)),   # bvh_pass:
+                           np.zeros((0, 3)))                    # every node merged
         self._cache = (self.local, self.stamp, tuple(np.zeros(a.shape[1:]) for a in self.local))
         self._N1 = np.zeros(n + 1)
-        self._poses = (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)))   # group_poses' out
+        self._poses = (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)))   # the groups' poses
         self._scratch = (np.empty((3, 3)), box_scratch())
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
                                 pixels == "moved", 1], np.int64)   # [3]: set at each call
