@@ -487,7 +487,7 @@ class BoundingVolumes(_Coverage):
         cam = self.camera(t)
         view, (Rc, pc) = view_of(cam), camera_pose(cam)
         nb, N = self.model.nb, np.empty(self.tree.n_nodes + 1)
-        self._codes[3] = numba.get_num_threads()
+        self._runs()
         if adaptive is None:             # every body placed at q (rigid joints keep their q)
             with compiling(bvh_pass):
                 bvh_pass(self._codes, view, Rc, pc, nb, plan(self.model).arrays, as_input(q),
@@ -521,10 +521,17 @@ class BoundingVolumes(_Coverage):
         if not self.covers_every_node:
             return None
         self._bind(adaptive)
-        self._codes[3] = numba.get_num_threads()
+        self._runs()
         constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
                      self.world, self._N1, self._moved, self._scratch)
         return constants, _frames(steps, [self._camera_arrays(t) for t in times])
+
+    def _runs(self):
+        """The runs of a large forest's subtrees on threads (``codes[3]``,
+        :func:`forest_coverage`): numba's thread count, asked only of a forest
+        that runs on threads (a few µs a call)."""
+        if in_parallel(self.model.nb, self._forest[1]):
+            self._codes[3] = numba.get_num_threads()
 
     def _camera_arrays(self, t):
         """:func:`camera_arrays` of the camera at ``t`` (the last ones again while
