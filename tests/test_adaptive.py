@@ -224,8 +224,8 @@ def test_grounded_front_after_lookahead():
     assert np.abs(second - expected).max() <= tol, np.abs(second - expected).max()
 
 
-@pytest.mark.parametrize("lookahead", [False, True])
-def test_hybrid_bodies_stay_exact_during_a_run(lookahead):
+@pytest.mark.parametrize("lookahead, every", [(False, 1), (True, 1), (True, 3)])
+def test_hybrid_bodies_stay_exact_during_a_run(lookahead, every):
     """After steps with rigidification, release and changing external forces
     (budget mode, short dwell), the hybrid evaluation at the current state still
     equals the locked-joint solution: the cached group data and force sums are
@@ -237,7 +237,7 @@ def test_hybrid_bodies_stay_exact_during_a_run(lookahead):
     q, qd, tau, _ = random_state(model, seed)
     pokes = Pokes(model.nb, 1e-3, 3, seed)
     sim = vdad.Simulator(model, q, 0.1 * qd, method="adaptive", budget=10, dwell=3,
-                         external=pokes, lookahead=lookahead)
+                         external=pokes, lookahead=lookahead, lookahead_every=every)
     worst = 0.0
     for block in range(8):
         sim.step(10)
@@ -256,6 +256,26 @@ def test_hybrid_bodies_stay_exact_during_a_run(lookahead):
         assert err <= 100 * cond * EPS, (block, err)
     history = sim.history
     assert sum(h.rigidified for h in history) > 0 and sum(h.force_update for h in history) > 0
+
+
+@pytest.mark.parametrize("loop", [True, False])
+def test_the_look_ahead_runs_every_lookahead_every_steps(loop):
+    """``lookahead_every=k``: only the steps whose number is a multiple of ``k``
+    take the look-ahead and release joints (compiled loop and Python steps), in
+    threshold and budget mode; the others release none."""
+    for every in (1, 4):
+        for options in ({"threshold": 0.1}, {"budget": 6, "dwell": 2}):
+            sim = pendulum(n_bodies=20).simulator(
+                method="view-bvh" if "threshold" in options else "adaptive",
+                lookahead_every=every, **options)
+            sim.adaptive_loop = loop
+            sim.step(400)
+            history = list(enumerate(sim.history, start=1))
+            off = [st for k, st in history if k % every]
+            on = [st for k, st in history if k % every == 0]
+            assert all(st.lookahead == 0 and st.released == 0 for st in off)
+            assert sum(st.lookahead > 0 for st in on) > len(on) // 2
+            assert sum(st.released for st in on) > 0, (every, options)
 
 
 def test_incremental_group_data_equal_a_fresh_evaluation():
@@ -663,6 +683,9 @@ def test_adaptive_options_are_checked():
     for bad in ("no", np.array([True, False]), 1):
         with pytest.raises(InputError, match="lookahead must be True or False"):
             scene.simulator(method="adaptive", lookahead=bad)
+    for bad in (0, 1.5, True):
+        with pytest.raises(InputError, match="lookahead_every must be a positive integer"):
+            scene.simulator(method="adaptive", threshold=1e-3, lookahead_every=bad)
     for weights, match in (("abc", "weights must be a real number"),
                            ({"joint0": "x"}, r"weights\['joint0'\] must be a real number"),
                            (True, "weights must be a real number.*boolean")):

@@ -381,6 +381,8 @@ def test_adaptive_steps_evaluate_the_built_in_forces_in_compiled_code(name, inte
     ("pendulum", "adaptive", {"threshold": 1e-4}),
     ("pendulum", "adaptive", {"budget": 6, "drop": "coast", "policy": "zero"}),
     ("pendulum", "view-bvh", {"pixels": "moved", "threshold": 1e-3}),
+    ("pendulum", "view-bvh", {"threshold": 0.1, "lookahead_every": 4}),
+    ("pendulum", "adaptive", {"budget": 6, "lookahead_every": 3}),
     ("dog puppet", "view-bvh", {}),
     ("hanging dogs", "adaptive", {"threshold": 1e-5, "metric": "coefficients"}),
     ("falling character", "view-bvh", {"coverage_every": 5}),

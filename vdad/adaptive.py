@@ -192,7 +192,10 @@ class AdaptiveDynamics:
     floating body whose weight were dropped would fly in a straight line.
     dwell: steps a node keeps a new state. policy: ``"momentum"`` (locking impulse) or
     ``"zero"`` (zero the velocities of newly rigid joints, as the paper).
-    lookahead: release front joints whose look-ahead score is high.
+    lookahead: release front joints whose look-ahead score is high;
+    lookahead_every: take the look-ahead (and its releases) only at the steps
+    whose number is a multiple of it (a front joint waits up to that many steps
+    more for its release; ``docs/adaptive.md``).
     drop: what becomes of the active joints a step does not accelerate:
     ``"lock"`` (default: they are rigidified at once, by ``policy``, and the step's
     dynamics re-evaluated on the smaller region: always an exact constrained
@@ -224,7 +227,7 @@ class AdaptiveDynamics:
 
     def __init__(self, model, dt, tree=None, threshold=None, budget=None, weights=None,
                  velocity_weights=None, kappa=4.0, dwell=10, policy="momentum", lookahead=True,
-                 drop="lock", metric="direct", energy="cap", coverage=None, coverage_every=1):
+                 lookahead_every=1, drop="lock", metric="direct", energy="cap", coverage=None, coverage_every=1):
         if (threshold is None) == (budget is None):
             raise InputError("adaptive dynamics needs exactly one of threshold= or budget=")
         if threshold is not None:
@@ -259,6 +262,7 @@ class AdaptiveDynamics:
         self.budget = None if budget is None else int(budget)
         self.kappa, self.dwell, self.policy = float(kappa), int(dwell), policy
         self.lookahead = check_flag("lookahead", lookahead)
+        self.lookahead_every = check_count("lookahead_every", lookahead_every)
         self.wA = resolve_weights(model, weights, "weights")
         self.wV = self.wA if velocity_weights is None else resolve_weights(
             model, velocity_weights, "velocity_weights")
@@ -479,7 +483,8 @@ class AdaptiveDynamics:
         the joint if ``qdd`` is not finite."""
         budget = 0 if self.budget is None else self.budget
         with compiling(evaluate):
-            ok = evaluate(first, self.predictive, budget, False, False, self.lookahead,
+            ok = evaluate(first, self.predictive, budget, False, False,
+                          self._lookahead_at(self.step_count + 1),
                           self.drop == "lock", self.step_count + 1, self.dwell, self.dt,
                           self._keep, self.kappa, self.model.nb, *self._args()[:4], self._top,
                           self.groups.up, self._roots, q, qd, tau, self.kin.arrays,
@@ -652,7 +657,8 @@ class AdaptiveDynamics:
         self.step_count += 1
         with compiling(update_region):
             nc, nr = update_region(
-                self.step_count, 0 if self.budget is None else self.budget, self.lookahead,
+                self.step_count, 0 if self.budget is None else self.budget,
+                self._lookahead_at(self.step_count),
                 self.dt, np.inf if self.threshold is None else self.threshold, self._keep,
                 self.dwell, self.model.nb, plan(self.model).arrays, self.tree.arrays,
                 self.groups.up, qd, r.arrays, self._stack)
@@ -678,7 +684,8 @@ class AdaptiveDynamics:
         counts as done for adaptive dynamics, as :meth:`step` would)."""
         sums, last, counters, no_forces = self._run_work
         F, e0 = (no_forces, 0) if tables is None else tables
-        options = (self.predictive, 0 if self.budget is None else self.budget, self.lookahead,
+        options = (self.predictive, 0 if self.budget is None else self.budget,
+                   self.lookahead_every if self.lookahead else 0,
                    self.drop == "lock", self.policy == "momentum", self.dwell, self.dt,
                    self._keep, self.kappa, np.inf if self.threshold is None else self.threshold)
         r, vis, m = self.region, 0.0, min(n, len(counters))
@@ -749,6 +756,10 @@ class AdaptiveDynamics:
                          self.data.arrays, r.arrays)
         self._stale_coverage = self._stale_coverage or self._refresh_on_change
         return int(r.counts[RIGIDIFIED]), int(r.counts[RELEASED])
+
+    def _lookahead_at(self, step):
+        """Whether step number ``step`` takes the look-ahead."""
+        return self.lookahead and step % self.lookahead_every == 0
 
     @property
     def _refresh_on_change(self):

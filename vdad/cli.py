@@ -86,7 +86,7 @@ def _scene_options(parser):
 # the method options that make_simulator gives Scene.simulator when set: each is the
 # keyword of the CLI option of the same name (--coverage-every: coverage_every)
 SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "drop", "energy", "dwell", "kappa",
-                     "volume", "estimate", "pixels", "counting", "coverage_every", "distance",
+                     "lookahead_every", "volume", "estimate", "pixels", "counting", "coverage_every", "distance",
                      "sleep_speed", "sleep_time")
 
 
@@ -166,6 +166,9 @@ def _method_options(parser):
     adaptive.add_argument("--kappa", type=float,
                           help="hysteresis: rigidify below threshold/kappa (default "
                           f"{default('kappa')})")
+    adaptive.add_argument("--lookahead-every", type=_positive_int,
+                          help="steps between look-aheads, which release rigid joints "
+                          f"(default {default('lookahead_every')})")
     view = parser.add_argument_group("view-dependent methods",
                                      "with --method view-bvh or view-oq")
     view.add_argument("--volume", choices=VOLUMES,

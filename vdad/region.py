@@ -487,7 +487,9 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
     locking impulse instead (leaves from the front's momenta ``h``, ``c_J = 0``,
     ``tau = 0``, every active node solved), whose result are the new ``qd`` of the
     active joints. ``placed``: ``kin`` holds the active joints' kinematics at ``(q,
-    qd)`` already (:func:`cap_energy` of the step before computed them). On a
+    qd)`` already (:func:`cap_energy` of the step before computed them).
+    ``lookahead_on``: the step's first evaluation takes the look-ahead
+    (:func:`lookahead_pass`); without it the front's scores ``la`` are NaN. On a
     model with raised leaves (``bodies[12]``, :func:`~vdad.dca.body_arrays`) the
     groups' leaves are raised and the accelerations refined on the hybrid
     (:func:`refine_region`, (R6) of ``docs/accuracy.md``) before the metric is
@@ -573,6 +575,11 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
                           region)
         if lookahead_on:
             lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, region)
+        else:                                           # no front node competes (budget)
+            for e in range(n_visit):
+                n = visit[e]
+                if n >= nb and not active[n]:
+                    la[n] = np.nan
         if budget > 0:
             run_heap(budget, kappa, dt2, nb, tree, roots, region)
             for e in range(n_visit):
@@ -1361,7 +1368,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     evaluation, the integration of the active joints, the region update, the
     energy cap; then the simulator's checks on the active joints. ``options`` =
     (predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa,
-    threshold); ``sums`` = the force sums held by the groups and ``carry_forces``'
+    threshold), ``lookahead`` 0 (none) or the steps between look-aheads; ``sums`` = the force sums held by the groups and ``carry_forces``'
     scratch; ``force_work`` = (the joints whose kinematics the forces read,
     ``AdaptiveDynamics.force_joints``; kinematics, states, f_ext, tau of every
     body); ``energy``: the energy cap's (:func:`cap_energy`, applied after each
@@ -1375,7 +1382,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     region if ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
     status)``: 0, or 1 if a step's ``qdd`` was not finite (its state not
     advanced), 2 if its new state failed the checks (``last`` holds the one before)."""
-    predictive, budget, lookahead_on, locking, momentum, dwell, dt, keep, kappa, threshold = \
+    predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa, threshold = \
         options
     held, pending, mark, order, is_B = sums
     fjs, fkin, states, f_ext, tau = force_work
@@ -1408,6 +1415,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         row[0], row[1] = counts[N_JOINTS], counts[FRONT]
         row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                              held, active, up, is_B, groups, pending, mark, order)
+        lookahead_on = lookahead > 0 and (step + 1) % lookahead == 0
         if not evaluate(True, predictive, budget, False, placed, lookahead_on, locking, step + 1,
                         dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
                         qd, tau, kin, work, region):
