@@ -258,6 +258,25 @@ def test_hybrid_bodies_stay_exact_during_a_run(lookahead, every):
     assert sum(h.rigidified for h in history) > 0 and sum(h.force_update for h in history) > 0
 
 
+def test_the_history_holds_every_steps_stats_in_order():
+    """``Simulator.history``: the compiled steps' counters read as StepStats, in
+    order with those of Python-level steps, the same objects at each read, the
+    last one the adaptive dynamics' ``stats``."""
+    sim = pendulum(n_bodies=6).simulator(method="adaptive", threshold=1e-3)
+    sim.step(25)
+    assert len(sim.history) == 25 and repr(sim.history) == "History(25 steps)"
+    sim.adaptive_loop = False
+    sim.step(3)
+    sim.adaptive_loop = True
+    sim.step(4)
+    h = sim.history
+    assert len(h) == 32 and h[-1] is sim.adaptive.stats and h[3] is list(h)[3]
+    assert all(isinstance(st, StepStats) for st in h) and h[24:26] == list(h)[24:26]
+    compiled = h[:25] + h[28:]
+    assert all(st.times["steps"] > 0 and st.times["dynamics"] == 0 for st in compiled)
+    assert all(st.times["steps"] == 0 and st.times["dynamics"] > 0 for st in h[25:28])
+
+
 @pytest.mark.parametrize("loop", [True, False])
 def test_the_look_ahead_runs_every_lookahead_every_steps(loop):
     """``lookahead_every=k``: only the steps whose number is a multiple of ``k``

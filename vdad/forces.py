@@ -755,6 +755,7 @@ class ForceTables:
                       cat([np.full(len(e.point_body), e.friction) for e in fc]),
                       cat([np.full(len(e.point_body), e.height) for e in fc]))
         self.pulses = kinds[RandomTorques]
+        self._fixed = None                   # arrays() where nothing depends on time
         lim = [e.arrays for e in kinds[JointLimits]]
         self.limits = tuple(cat([a[i] for a in lim], i64 if i in (0, 1, 6, 7) else float)
                             for i in range(11))
@@ -770,7 +771,10 @@ class ForceTables:
     def arrays(self, times):
         """The tuple :func:`apply_forces` reads, for evaluations at ``times`` (E,):
         anchors and their velocities per evaluation (one row if none moves) and
-        every random-torque pulse acting between the first and the last time."""
+        every random-torque pulse acting between the first and the last time.
+        Without moving anchors and pulses, the same tuple at every call."""
+        if self._fixed is not None:
+            return self._fixed
         cat = self._cat
         moving = [e for e in self.springs if e.moving]
         rows = 1 if not moving else len(times)
@@ -790,8 +794,11 @@ class ForceTables:
                   cat([t[2] for t in tables], tail=(3,)),
                   cat([np.full(len(t[1]), e.duration)
                        for e, t in zip(self.pulses, tables, strict=True)]))
-        return (*self.spring[:3], anchors, velocity, *self.spring[3:], *self.drag, *self.floor,
-                *pulses, *self.limits)
+        out = (*self.spring[:3], anchors, velocity, *self.spring[3:], *self.drag, *self.floor,
+               *pulses, *self.limits)
+        if not moving and not self.pulses:
+            self._fixed = out
+        return out
 
 
 def state_bodies(F):

@@ -152,7 +152,7 @@ def table1(rows):
     for r in rows:
         m = r["config"]["method"]
         paper = PAPER["table1"].get(m)
-        out.append([m, _num(parameter(r["config"])), _num(r["ms_per_step"]),
+        out.append([curve(r["config"]), _num(parameter(r["config"])), _num(r["ms_per_step"]),
                     _num(r["speedup"]), _num(r["active_joints"]), _num(_err(r)),
                     _num(_err(r, "differing_pixels")),
                     *(("-",) * 3 if paper is None else

@@ -106,9 +106,10 @@ def plan(quick=False) -> dict:
     q = bool(quick)
     p_steps, p_every = (200, 20) if q else (600, 20)
     table1 = [_config("pendulum", {"n_bodies": 20}, "dca", {}, 200 if q else 1000, 10)]
-    for t in (0.01, 0.03) if q else (0.01, 0.03, 0.1):
-        for m in ("adaptive", "view-bvh", "view-oq"):
-            options = {"threshold": t * 1e-3} if m == "adaptive" else _view(m, t)
+    for t in (0.01, 0.03) if q else (0.01, 0.03, 0.1, 0.12):
+        for m, extra in (("adaptive", {}), ("view-bvh", {}), ("view-bvh", {"pixels": "moved"}),
+                         ("view-oq", {})):
+            options = {"threshold": t * 1e-3} if m == "adaptive" else _view(m, t, **extra)
             table1.append(_config("pendulum", {"n_bodies": 20}, m, options,
                                   200 if q else 1000, 10))
     thresholds = [1e-5, 1e-3, 1e-1] if q else [1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0]

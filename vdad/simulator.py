@@ -18,7 +18,7 @@ import numpy as np
 
 from . import dca
 from ._linalg import compiling
-from .adaptive import AdaptiveDynamics, rotational_dofs
+from .adaptive import AdaptiveDynamics, History, rotational_dofs
 from .assembly import check_tree
 from .baselines import DistanceLOD, Sleeping, articulated_bodies, root_last_tree
 from .camera import camera_at, check_path
@@ -230,8 +230,8 @@ class Simulator:
     at the top it keeps one joint articulated per floating body instead of a
     path of them, ``docs/adaptive.md``).
 
-    With ``"adaptive"``, ``history`` holds the :class:`~vdad.adaptive.StepStats`
-    of every step and ``adaptive`` the adaptive work state. With ``"symplectic"``,
+    With ``"adaptive"``, ``history`` (a :class:`~vdad.adaptive.History`) holds
+    the :class:`~vdad.adaptive.StepStats` of every step and ``adaptive`` the adaptive work state. With ``"symplectic"``,
     each step is taken in ``2 ** halvings[0]`` substeps: 1 until a step's velocity
     solve fails to converge, then as many as that step needed, for the rest of the
     run ((S4) of ``docs/accuracy.md``).
@@ -267,7 +267,7 @@ class Simulator:
         self.step_count = 0
         self._rotational = rotational_dofs(model)
         self.halvings = np.zeros(1, np.int64)
-        self.history = []
+        self.history = History()
         self.adaptive = None
         self.camera = None if camera is None else check_path(camera)
         self.environment = None if environment is None else check_environment(environment)

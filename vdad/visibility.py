@@ -476,6 +476,8 @@ class BoundingVolumes(_Coverage):
         self._scratch = (np.empty((3, 3)), box_scratch())
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
                                 pixels == "moved", 1], np.int64)   # [3]: set at each call
+        self._threaded = bool(in_parallel(self.model.nb, self._forest[1]))
+        self._no_frames = _frames([], [])
 
     @property
     def covers_every_node(self):
@@ -524,13 +526,15 @@ class BoundingVolumes(_Coverage):
         self._runs()
         constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
                      self.world, self._N1, self._moved, self._scratch)
+        if not len(times):
+            return constants, self._no_frames
         return constants, _frames(steps, [self._camera_arrays(t) for t in times])
 
     def _runs(self):
         """The runs of a large forest's subtrees on threads (``codes[3]``,
         :func:`forest_coverage`): numba's thread count, asked only of a forest
         that runs on threads (a few µs a call)."""
-        if in_parallel(self.model.nb, self._forest[1]):
+        if self._threaded:
             self._codes[3] = numba.get_num_threads()
 
     def _camera_arrays(self, t):
