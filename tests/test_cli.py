@@ -265,7 +265,8 @@ def test_run_baselines(tmp_path):
                  "--no-progress"]) == 0
     assert json.loads(sleep.read_text())["options"] == {
         "threshold": 0.0, "sleep_speed": 0.1, "sleep_time": 0.2, "kappa": 4.0, "dwell": 10,
-        "policy": "momentum", "lookahead": True, "lookahead_every": 1, "drop": "lock", "metric": "direct",
+        "policy": "momentum", "lookahead": True, "lookahead_every": 1, "drop": "lock",
+        "metric": "direct",
         "energy": "free", "coverage_every": 1}
 
 

@@ -284,7 +284,8 @@ class AdaptiveDynamics:
 
     def __init__(self, model, dt, tree=None, threshold=None, budget=None, weights=None,
                  velocity_weights=None, kappa=4.0, dwell=10, policy="momentum", lookahead=True,
-                 lookahead_every=1, drop="lock", metric="direct", energy="cap", coverage=None, coverage_every=1):
+                 lookahead_every=1, drop="lock", metric="direct", energy="cap", coverage=None,
+                 coverage_every=1):
         if (threshold is None) == (budget is None):
             raise InputError("adaptive dynamics needs exactly one of threshold= or budget=")
         if threshold is not None:

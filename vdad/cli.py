@@ -86,8 +86,8 @@ def _scene_options(parser):
 # the method options that make_simulator gives Scene.simulator when set: each is the
 # keyword of the CLI option of the same name (--coverage-every: coverage_every)
 SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "drop", "energy", "dwell", "kappa",
-                     "lookahead_every", "volume", "estimate", "pixels", "counting", "coverage_every", "distance",
-                     "sleep_speed", "sleep_time")
+                     "lookahead_every", "volume", "estimate", "pixels", "counting",
+                     "coverage_every", "distance", "sleep_speed", "sleep_time")
 
 
 def _flag(name):

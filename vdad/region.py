@@ -1368,8 +1368,9 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     evaluation, the integration of the active joints, the region update, the
     energy cap; then the simulator's checks on the active joints. ``options`` =
     (predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa,
-    threshold), ``lookahead`` 0 (none) or the steps between look-aheads; ``sums`` = the force sums held by the groups and ``carry_forces``'
-    scratch; ``force_work`` = (the joints whose kinematics the forces read,
+    threshold), ``lookahead`` 0 (none) or the steps between look-aheads;
+    ``sums`` = the force sums held by the groups and ``carry_forces``' scratch;
+    ``force_work`` = (the joints whose kinematics the forces read,
     ``AdaptiveDynamics.force_joints``; kinematics, states, f_ext, tau of every
     body); ``energy``: the energy cap's (:func:`cap_energy`, applied after each
     step); ``coverage`` = (constants, frames) of

@@ -231,10 +231,11 @@ class Simulator:
     path of them, ``docs/adaptive.md``).
 
     With ``"adaptive"``, ``history`` (a :class:`~vdad.adaptive.History`) holds
-    the :class:`~vdad.adaptive.StepStats` of every step and ``adaptive`` the adaptive work state. With ``"symplectic"``,
-    each step is taken in ``2 ** halvings[0]`` substeps: 1 until a step's velocity
-    solve fails to converge, then as many as that step needed, for the rest of the
-    run ((S4) of ``docs/accuracy.md``).
+    the :class:`~vdad.adaptive.StepStats` of every step and ``adaptive`` the
+    adaptive work state. With ``"symplectic"``, each step is taken in ``2 **
+    halvings[0]`` substeps: 1 until a step's velocity solve fails to converge,
+    then as many as that step needed, for the rest of the run ((S4) of
+    ``docs/accuracy.md``).
     """
 
     def __init__(self, model, q0=None, qd0=None, dt=1e-3, method="dca",
