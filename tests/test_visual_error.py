@@ -262,6 +262,9 @@ def test_a_diverging_run_stops_with_its_frames_so_far(scene):
     assert len(trace.t) == 2 and info["steps"] == 25
     assert_all_zero(ErrorTrace(trace.t, trace.mean_px, trace.max_px, [0, 0]))
     assert np.all(np.isnan(trace.differing_pixels))
+    diverging = vdad.Simulator(scene.model, scene.q0, external=nan_after)
+    with pytest.raises(vdad.errors.SimulationError, match="step 26"):     # record stops too
+        record(diverging, 100, every=10)
 
     def broken(t, q, qd):
         raise RuntimeError("broken force")

@@ -160,16 +160,34 @@ def record(sim, steps, every=1, progress=False) -> Trajectory:
     _check_simulator(sim)
     steps, every, frames = _frames(steps, every)
     progress = check_flag("progress", progress)
-    t = np.empty(frames)                                    # (F,)
-    q = np.empty((frames, sim.model.nq))                    # (F, nq)
-    timer = StepTimer()
     with tqdm(total=steps, unit="step", disable=not progress) as bar:
-        for k in range(frames):
+        t, q, _, timer, _, failure = _step_frames(sim, frames, every, bar)
+    if failure is not None:
+        raise failure
+    return Trajectory(np.array(t), np.array(q).reshape(-1, sim.model.nq), timer.ms_per_step)
+
+
+def _step_frames(sim, frames, every, bar, reference=None):
+    """Step ``sim`` ``frames`` times ``every`` steps, and after each the
+    ``reference`` Simulator (lockstep; None: none), each timed apart
+    (:class:`StepTimer`). Returns the frames' times and configurations (lists of
+    float, (nq,)), the reference's configurations, both timers, and the
+    SimulationError that stopped ``sim`` (None: it took every frame)."""
+    t, q, q_ref, timer, reference_timer = [], [], [], StepTimer(), StepTimer()
+    for _ in range(frames):
+        try:
             with timer.frame(sim):
                 sim.step(every)
-            t[k], q[k] = sim.t, sim.q
-            bar.update(every)
-    return Trajectory(t, q, timer.ms_per_step)
+        except SimulationError as exc:
+            return t, q, q_ref, timer, reference_timer, exc
+        if reference is not None:
+            with reference_timer.frame(reference):
+                reference.step(every)
+            q_ref.append(reference.q.copy())
+        t.append(sim.t)
+        q.append(sim.q.copy())
+        bar.update(every)
+    return t, q, q_ref, timer, reference_timer, None
 
 
 class StepTimer:
@@ -438,23 +456,12 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
 
     lockstep = isinstance(reference, Simulator)
     start_step, start_history = sim.step_count, len(sim.history)
-    t, q, q_ref = [], [], []                                # per frame: float, (nq,), (nq,)
-    failure, timer, reference_timer = None, StepTimer(), StepTimer()
     with tqdm(total=steps, unit="step", desc="simulate", disable=not progress) as bar:
-        for k in range(frames):
-            try:
-                with timer.frame(sim):
-                    sim.step(every)
-            except SimulationError as exc:
-                failure = str(exc)
-                break
-            if lockstep:
-                with reference_timer.frame(reference):
-                    reference.step(every)
-            t.append(sim.t)
-            q.append(sim.q.copy())
-            q_ref.append(reference.q.copy() if lockstep else reference.q[k])
-            bar.update(every)
+        t, q, q_ref, timer, reference_timer, failure = _step_frames(
+            sim, frames, every, bar, reference if lockstep else None)
+    if not lockstep:
+        q_ref = reference.q[:len(t)]
+    failure = None if failure is None else str(failure)
     # the errors after the runs: the measuring renderer, between two steps, would
     # evict the caches of whichever run stepped next and bias its time (docs/reproduction.md)
     rows = []
