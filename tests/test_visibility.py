@@ -11,11 +11,11 @@ from strategies import moved_pixels, node_bodies, random_configuration, random_t
 from vdad import Body, Geom, Model, Simulator, dca
 from vdad.adaptive import AdaptiveDynamics
 from vdad.assembly import AssemblyTree
-from vdad.bounding import areas, body_volumes, place
+from vdad.bounding import VOLUMES, areas, body_volumes, place
 from vdad.camera import Camera
 from vdad.errors import InputError, SimulationError
 from vdad.scenes import pendulum
-from vdad.visibility import ESTIMATES, BoundingVolumes, camera_arrays, coverage_pass
+from vdad.visibility import ESTIMATES, PIXELS, BoundingVolumes, camera_arrays, coverage_pass
 
 
 @pytest.mark.parametrize("volume", ["sphere", "obb"])
@@ -310,3 +310,20 @@ def test_camera_checks_and_paths():
     np.testing.assert_allclose(k(9.0).position, far.position)
     with pytest.raises(InputError, match="increasing"):
         Keyframes((1.0, 0.0), (cam, far))
+
+
+@pytest.mark.parametrize("pixels", PIXELS)
+@pytest.mark.parametrize("volume", VOLUMES)
+def test_in_loop_coverage_has_the_types_of_the_idle_coverage(volume, pixels):
+    """`vdad compile` compiles the compiled adaptive steps (region.region_steps)
+    with the idle coverage of a view-independent run; the bounding volumes'
+    coverage of a view-bvh run must have the same numba types (read-only flags
+    included), or its first run after `vdad compile` compiles the loop again."""
+    import numba
+
+    sim = pendulum(4).simulator(method="view-bvh", threshold=1e-3, volume=volume,
+                                pixels=pixels)
+    ad = sim.adaptive
+    for steps, times in (([], []), ([0, 5], [0.0, 0.005])):
+        live = ad.coverage.loop_coverage(steps, times, ad)
+        assert numba.typeof(live) == numba.typeof(ad._idle_coverage)

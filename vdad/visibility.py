@@ -66,7 +66,9 @@ PIXELS = ("own", "moved")                        # whose pixels weight a node's 
 
 
 def _ids(nodes):
-    return np.ascontiguousarray(nodes, np.int64)
+    """A writable int64 copy: a model's read-only arrays would give the compiled
+    adaptive steps a second numba type (:func:`idle_loop_coverage`)."""
+    return np.array(nodes, np.int64)
 
 
 @pass_kernel
