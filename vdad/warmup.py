@@ -42,7 +42,8 @@ def _adaptive():
     """Adaptive dynamics one Python-level step at a time (RK4, and semi-implicit
     with ``adaptive_loop`` off): evaluations, the look-ahead, region changes with
     the locking impulse, the view-dependent coverage of the region (eq. 5) and of
-    every node (eq. 7), and the bodies' poses from their groups."""
+    every node (eq. 7), and the bodies' poses from their groups (all of them, and
+    some: lod-distance's root bodies)."""
     from .scenes import pendulum
 
     scene = pendulum(8)
@@ -53,6 +54,7 @@ def _adaptive():
         sim.adaptive_loop = False
         sim.step(4)
     sim.body_poses()
+    sim.body_poses([0])
 
 
 def _loop():
@@ -66,10 +68,13 @@ def _loop():
 
 def _coverage():
     """Bounding-volume coverage of a whole tree, every volume type, and the batch
-    forms of placements, merges and projected areas."""
+    forms of placements, merges and projected areas, and the rendered counts'
+    sums up the tree (every rule of :data:`~vdad.visibility.PIXELS`)."""
+    import numpy as np
+
     from .bounding import VOLUMES, areas, body_volumes, merge, place
     from .scenes import pendulum
-    from .visibility import BoundingVolumes
+    from .visibility import PIXELS, BoundingVolumes
 
     scene = pendulum(4)
     sim = scene.simulator()
@@ -78,6 +83,9 @@ def _coverage():
         BoundingVolumes(sim.tree, scene.camera, volume)(0.0, sim.q)
         world = place(body_volumes(scene.model, volume), R, p)
         areas(merge(world, world), scene.camera)
+    for pixels in PIXELS:                  # the rendered counts' sums up the tree
+        BoundingVolumes(sim.tree, scene.camera, pixels=pixels).node_pixels(
+            np.zeros(sim.tree.n_nodes + 1))
 
 
 #: the shares of the kernels, each compiled in a process of its own, the longest
