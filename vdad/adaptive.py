@@ -74,6 +74,7 @@ from .region import (
     euler_active,
     evaluate,
     lock_pruned,
+    lookahead_due,
     rebuild,
     region_poses,
     region_steps,
@@ -750,7 +751,7 @@ class AdaptiveDynamics:
         sums, last, counters, no_forces = self._run_work
         F, e0 = (no_forces, 0) if tables is None else tables
         options = (self.predictive, 0 if self.budget is None else self.budget,
-                   self.lookahead_every if self.lookahead else 0,
+                   self._lookahead_steps,
                    self.drop == "lock", self.policy == "momentum", self.dwell, self.dt,
                    self._keep, self.kappa, np.inf if self.threshold is None else self.threshold)
         r, vis, m = self.region, 0.0, min(n, len(counters))
@@ -818,9 +819,15 @@ class AdaptiveDynamics:
         self._stale_coverage = self._stale_coverage or self._refresh_on_change
         return int(r.counts[RIGIDIFIED]), int(r.counts[RELEASED])
 
+    @property
+    def _lookahead_steps(self):
+        """The steps between look-aheads (0: none)."""
+        return self.lookahead_every if self.lookahead else 0
+
     def _lookahead_at(self, step):
-        """Whether step number ``step`` takes the look-ahead."""
-        return self.lookahead and step % self.lookahead_every == 0
+        """Whether step number ``step`` takes the look-ahead
+        (``vdad.region.lookahead_due``, the compiled steps' rule)."""
+        return bool(lookahead_due(self._lookahead_steps, step))
 
     @property
     def _refresh_on_change(self):

@@ -465,6 +465,13 @@ def front_leaf(F, tree, groups, gravity, kin, top, impulse, h, Phi, b, X, Q, tmp
 
 
 @inlined
+def lookahead_due(lookahead, step):
+    """Whether step number ``step`` takes the look-ahead (:func:`lookahead_pass`),
+    taken every ``lookahead`` steps (0: never)."""
+    return lookahead > 0 and step % lookahead == 0
+
+
+@inlined
 def active_kinematics(js, region, q, qd, velocities, kin):
     """:func:`~vdad.kinematics.kinematics_pass` over the active joints only, each
     on its kinematic parent with its pre-placed joint frame (:func:`rebuild`)."""
@@ -1416,7 +1423,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         row[0], row[1] = counts[N_JOINTS], counts[FRONT]
         row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                              held, active, up, is_B, groups, pending, mark, order)
-        lookahead_on = lookahead > 0 and (step + 1) % lookahead == 0
+        lookahead_on = lookahead_due(lookahead, step + 1)
         if not evaluate(True, predictive, budget, False, placed, lookahead_on, locking, step + 1,
                         dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
                         qd, tau, kin, work, region):
