@@ -96,3 +96,23 @@ def test_a_fast_body_stays_awake():
 def test_bad_baseline_options(options, message):
     with pytest.raises(InputError, match=message):
         pendulum(n_bodies=3).simulator(**options)
+
+
+@pytest.mark.parametrize("method", ["lod-distance", "sleeping"])
+def test_a_switch_is_evaluated_once_per_frame(method, monkeypatch):
+    """Like the coverage, a switch is evaluated once per displayed frame, and a
+    region change does not call it again (it gives every node's value)."""
+    from vdad.simulator import frame_steps
+
+    scene = pendulum(n_bodies=5, angle=0.0)             # far, or still: it switches off
+    options = {"distance": 0.01} if method == "lod-distance" else {"sleep_time": 0.05}
+    sim = Simulator(scene.model, scene.q0, np.r_[0.01, np.zeros(4)], dt=scene.dt,
+                    camera=scene.camera, method=method, dwell=0, **options)
+    every = frame_steps(scene.dt)
+    assert every > 1 and sim.adaptive.coverage_every == every
+    switch, calls = type(sim.adaptive.coverage), []
+    monkeypatch.setattr(switch, "__call__", lambda self, t, q, adaptive, call=switch.__call__:
+                        calls.append(t) or call(self, t, q, adaptive))
+    sim.step(10 * every)
+    assert np.allclose(calls, np.arange(10) * every * scene.dt)
+    assert sum(h.rigidified + h.released for h in sim.history) > 0

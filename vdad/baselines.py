@@ -12,7 +12,10 @@ a node with ``N = 0`` scores zero and is rigidified. On :func:`root_last_tree`
 every articulated body's joint to the world is its top node, so switching all
 its other nodes off leaves one rigid body hanging from that joint (a pendulum
 swings as one rod; a floating dog or character moves as one rigid body, since
-a floating base is never locked).
+a floating base is never locked). Like the coverage, a switch is evaluated once
+per displayed frame by default (``coverage_every``, as a game engine decides
+its levels of detail and its sleepers per frame), and it gives every node's value
+(``covers_every_node``): the adaptive steps run in compiled code between frames.
 """
 
 from __future__ import annotations
@@ -42,6 +45,8 @@ def root_last_tree(model) -> AssemblyTree:
 
 class _Switch:
     """Per articulated body, whether its joints are articulated (1) or rigid (0)."""
+
+    covers_every_node = True                 # a region change needs no new switch
 
     def __init__(self, tree):
         model = tree.model
