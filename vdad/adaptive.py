@@ -757,8 +757,9 @@ class AdaptiveDynamics:
         r, vis, m = self.region, 0.0, min(n, len(counters))
         coverage = self._idle_coverage
         if self.coverage is not None:
-            due = [s for s in range(m) if (self.step_count + s) % self.coverage_every == 0
-                   or (s == 0 and self._stale_coverage)]
+            first = -self.step_count % self.coverage_every        # the next frame's step
+            due = [0] * (self._stale_coverage and first > 0) + list(
+                range(first, m, self.coverage_every))
             loop = getattr(self.coverage, "loop_coverage", None)
             times = [(time0 + s) * self.dt for s in due]
             in_loop = None if loop is None else loop(due, times, self)
