@@ -144,7 +144,7 @@ def plan(quick=False) -> dict:
                    "sleep": [0.05, 0.5, 2.0]})
                + _family_configs("falling_character", {}, 2500, 25, {
                    "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-3, 3e-3, 1e-2],
-                   "moved": [1e-3, 3e-3, 1e-2], "distance": [4.0, 6.0, 8.0],
+                   "moved": [1e-3, 3e-3, 1e-2, 3e-2, 1e-1], "distance": [4.0, 5.0, 6.0, 8.0],
                    "sleep": [0.05, 0.2, 1.0]}))
     return {"table1": table1, "figure8": figure8, "figure9": figure9, "dogs": dogs,
             "speed_vs_error": sve}
