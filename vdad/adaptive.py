@@ -758,8 +758,9 @@ class AdaptiveDynamics:
         coverage = self._idle_coverage
         if self.coverage is not None:
             first = -self.step_count % self.coverage_every        # the next frame's step
-            due = [0] * (self._stale_coverage and first > 0) + list(
-                range(first, m, self.coverage_every))
+            due = list(range(first, m, self.coverage_every))
+            if self._stale_coverage and first > 0:             # stale: evaluated at once
+                due.insert(0, 0)
             loop = getattr(self.coverage, "loop_coverage", None)
             times = [(time0 + s) * self.dt for s in due]
             in_loop = None if loop is None else loop(due, times, self)
