@@ -178,3 +178,38 @@ def test_clip_polygon():
     m = clip_polygon(quad, 4, 0.0, 0.0, -1.0, 0.5, out3)          # keep -z >= 0.5
     assert m == 4 and np.all(-out3[:m, 2] >= 0.5 - 1e-15)
     assert polygon_area(out3, m) == pytest.approx(0.5)            # its (x, y) shadow
+
+
+def test_viewport_area_clips_only_the_edges_it_crosses():
+    """The viewport area of convex polygons inside, across one to four edges and
+    outside the viewport equals the polygon clipped by all four edges in turn
+    (clipping by an edge a polygon does not cross keeps it whole): exactly where
+    it crosses none, and to rounding otherwise; fewer than three vertices cover
+    nothing."""
+    view = view_of(CAM)
+    W, H = view[1], view[2]
+    rng = np.random.default_rng(3)
+    crossed = np.zeros(5, int)
+    for _ in range(2000):
+        centre = rng.uniform((-0.5 * W, -0.5 * H), (1.5 * W, 1.5 * H))
+        angles = np.sort(rng.uniform(0, 2 * np.pi, rng.integers(3, 9)))
+        radius = rng.uniform(5.0, 1.2 * W)
+        P = centre + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        m = len(P)
+        lo, hi = P.min(axis=0), P.max(axis=0)
+        crossed[int(lo[0] < 0) + int(hi[0] > W) + int(lo[1] < 0) + int(hi[1] > H)] += 1
+        A, B = np.zeros((16, 2)), np.zeros((16, 2))
+        A[:m] = P
+        for normal, offset in (((1.0, 0.0), 0.0), ((-1.0, 0.0), -W), ((0.0, 1.0), 0.0),
+                               ((0.0, -1.0), -H)):
+            m = clip_polygon(A, m, *normal, 0.0, offset, B)
+            A, B = B, A
+        expected = polygon_area(A, m)
+        Q = np.zeros((16, 2))
+        Q[:len(P)] = P
+        area = viewport_area(view, Q, len(P), np.zeros((16, 2)))
+        assert area == pytest.approx(expected, rel=1e-12, abs=1e-9)
+        if lo[0] >= 0 and hi[0] <= W and lo[1] >= 0 and hi[1] <= H:
+            assert area == polygon_area(P, len(P))
+    assert np.all(crossed >= 20), crossed
+    assert viewport_area(view, np.full((16, 2), 10.0), 2, np.zeros((16, 2))) == 0.0

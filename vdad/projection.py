@@ -90,12 +90,32 @@ def polygon_area(P, m):
 
 @inlined
 def viewport_area(view, P, m, Q):
-    """Area of the polygon ``P[:m]`` (pixels) inside ``[0, width] x [0, height]``;
-    ``P`` and ``Q`` (same shape) are scratch, overwritten."""
-    m = clip_polygon(P, m, 1.0, 0.0, 0.0, 0.0, Q)
-    m = clip_polygon(Q, m, -1.0, 0.0, 0.0, -view[1], P)
-    m = clip_polygon(P, m, 0.0, 1.0, 0.0, 0.0, Q)
-    m = clip_polygon(Q, m, 0.0, -1.0, 0.0, -view[2], P)
+    """Area of the polygon ``P[:m]`` (pixels) inside ``[0, width] x [0, height]``,
+    clipped only by the viewport edges that its bounding box crosses (clipping by
+    an edge it does not cross keeps every vertex); ``P`` and ``Q`` (same shape)
+    are scratch, overwritten."""
+    if m < 3:
+        return 0.0
+    lo_u = hi_u = P[0, 0]
+    lo_v = hi_v = P[0, 1]
+    for i in range(1, m):
+        lo_u, hi_u = min(lo_u, P[i, 0]), max(hi_u, P[i, 0])
+        lo_v, hi_v = min(lo_v, P[i, 1]), max(hi_v, P[i, 1])
+    W, H = view[1], view[2]
+    if hi_u <= 0 or hi_v <= 0 or lo_u >= W or lo_v >= H:
+        return 0.0
+    if lo_u < 0:
+        m = clip_polygon(P, m, 1.0, 0.0, 0.0, 0.0, Q)
+        P, Q = Q, P
+    if hi_u > W:
+        m = clip_polygon(P, m, -1.0, 0.0, 0.0, -W, Q)
+        P, Q = Q, P
+    if lo_v < 0:
+        m = clip_polygon(P, m, 0.0, 1.0, 0.0, 0.0, Q)
+        P, Q = Q, P
+    if hi_v > H:
+        m = clip_polygon(P, m, 0.0, -1.0, 0.0, -H, Q)
+        P, Q = Q, P
     return polygon_area(P, m)
 
 
