@@ -120,6 +120,15 @@ def combine(estimate, N1, N2):
     return min(N1, N2)
 
 
+@inlined
+def finish(estimate, nb, n_nodes, N1, N, n):
+    """``N[n]`` of internal node ``n`` from its bodies' total to its ``N_M``
+    (:func:`combine`), once its parent has summed it (a body's is its area, a
+    ground child has none)."""
+    if nb <= n < n_nodes:
+        N[n] = combine(estimate, N1[n], N[n])
+
+
 @pass_kernel
 def coverage_pass(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest, body, R, p,
                   world, N1, N, grouped, scratch):
@@ -129,7 +138,8 @@ def coverage_pass(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest,
     ``body`` (packed ``c, R, h``, body frames) placed at their world poses ``R``,
     ``p``, their areas; each internal node's volume merged from its children's
     into ``world`` (n_nodes + 1 slots, the last an empty ground) and its area
-    ``N1``, and its bodies' total (``N``, then combined). Camera: world pose
+    ``N1``, and its bodies' total (``N``, combined by :func:`finish` once its
+    parent has summed it). Camera: world pose
     ``Rc``, ``pc``, intrinsics ``view``. Under eq. 7 a node's area is not
     computed where its bodies' total is below its children's areas
     (``docs/visibility.md``, "Areas that eq. 7 skips"): its volume holds
@@ -164,6 +174,8 @@ def coverage_pass(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest,
         else:
             A, B = child_slot(left[n - nb], n_nodes), child_slot(right[n - nb], n_nodes)
             N[n] = N[A] + N[B]
+            finish(estimate, nb, n_nodes, N1, N, A)
+            finish(estimate, nb, n_nodes, N1, N, B)
             if estimate == BODIES:
                 continue
             if from_groups and not active[n]:
@@ -178,9 +190,8 @@ def coverage_pass(r0, r1, kind, estimate, view, Rc, pc, nb, left, right, forest,
         N1[n] = volume_area(kind, view, Rc, pc, c[n], Rv[n], h[n], box)
         if n < nb:
             N[n] = N1[n]
-    for k in range(segments[r0], segments[r1]):
-        n = post[k]
-        N[n] = combine(estimate, N1[n], N[n])
+    for r in range(r0, r1):
+        finish(estimate, nb, n_nodes, N1, N, post[segments[r + 1] - 1])
 
 
 @parallel_kernel
