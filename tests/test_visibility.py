@@ -15,7 +15,14 @@ from vdad.bounding import VOLUMES, areas, body_volumes, place
 from vdad.camera import Camera
 from vdad.errors import InputError, SimulationError
 from vdad.scenes import pendulum
-from vdad.visibility import ESTIMATES, PIXELS, BoundingVolumes, camera_arrays, coverage_pass
+from vdad.visibility import (
+    ESTIMATES,
+    PIXELS,
+    BoundingVolumes,
+    camera_arrays,
+    coverage_pass,
+    id_counts_pass,
+)
 
 
 @pytest.mark.parametrize("volume", ["sphere", "obb"])
@@ -327,3 +334,22 @@ def test_in_loop_coverage_has_the_types_of_the_idle_coverage(volume, pixels):
     for steps, times in (([], []), ([0, 5], [0.0, 0.005])):
         live = ad.coverage.loop_coverage(steps, times, ad)
         assert numba.typeof(live) == numba.typeof(ad._idle_coverage)
+
+
+@pytest.mark.parametrize("nb", [1, 20, 300])
+def test_id_counts_equal_a_count_of_every_id(nb):
+    """Kim 2008 §5.4: the pixels of each body in a merged id image equal
+    ``np.bincount`` of the image's ids (the background and ids above ``nb``,
+    which no body draws, not counted), in images of blocks of one id, as bodies
+    draw them, and of single pixels."""
+    rng = np.random.default_rng(nb)
+    image = np.zeros((240, 320), np.uint32)
+    for _ in range(3 * nb):
+        r, c = rng.integers(0, 240), rng.integers(0, 320)
+        image[r:r + rng.integers(1, 30), c:c + rng.integers(1, 30)] = rng.integers(0, nb + 3)
+    image.ravel()[rng.integers(0, image.size, 500)] = rng.integers(0, nb + 3, 500)
+    counts = np.full(nb, -1, np.int64)
+    id_counts_pass(image, counts)
+    expected = np.bincount(image.ravel(), minlength=nb + 3)[1:nb + 1]
+    assert expected.sum() > 0
+    np.testing.assert_array_equal(counts, expected)

@@ -35,6 +35,7 @@ import numpy as np
 from ..environment import check_environment
 from ..errors import InputError, RenderError
 from ..model import check_model
+from ..visibility import id_counts_pass
 from . import context
 
 METHODS = ("merged", "queries")
@@ -309,8 +310,9 @@ class PixelCounter:
         (nb, 3) (world frame) seen by ``camera`` at the counter's resolution."""
         try:
             if self.method == "merged":
-                image = self._id_pass(camera, R, p)
-                return np.bincount(image.ravel(), minlength=self.nb + 1)[1:]
+                counts = np.empty(self.nb, np.int64)
+                id_counts_pass(self._id_pass(camera, R, p), counts)
+                return counts
             return self._query_pass(camera, R, p)
         except self._GL.GLError as exc:
             raise RenderError(f"OpenGL failed while counting pixels: {exc}") from exc
