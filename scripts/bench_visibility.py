@@ -60,9 +60,11 @@ def setups():
 
 
 #: the timing loops compiled as the adaptive steps that call the coverage
-#: (``vdad.region.region_steps``, a pass kernel): without numba's reference
-#: counting, which would add an atomic increment and decrement per array argument
-#: to every call (about 0.4 µs per evaluation of the 20-body tree)
+#: (``vdad.region.region_steps``, a ``vdad._linalg.pass_kernel``): without numba's
+#: reference counting, which would add an atomic increment and decrement per array
+#: argument to every call (about 0.4 µs per evaluation of the 20-body tree); not
+#: cached, as ``pass_kernel`` is, since a cached loop would keep the vdad kernels
+#: it links after they change
 in_steps = njit(error_model="numpy", _nrt=False)
 
 

@@ -10,7 +10,8 @@ shader fetches by id, so the whole scene is one draw call whatever the number
 of bodies. Two methods give the counts:
 
 * ``"merged"``: one draw into an R32UI id buffer (the fragment writes its id,
-  the clear value is 0), read back, ``np.bincount``;
+  the clear value is 0), read back, each body's pixels counted by
+  :func:`vdad.visibility.id_counts_pass`;
 * ``"queries"``: the paper's occlusion queries: a depth pre-pass of everything,
   then with depth writes and colour writes off and ``GL_LEQUAL``, one
   ``GL_SAMPLES_PASSED`` query around each body's ranged draw of the same buffer
