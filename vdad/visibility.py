@@ -139,9 +139,9 @@ def combine(estimate, N1, N2):
 
 @inlined
 def finish(estimate, nb, n_nodes, N1, N, n):
-    """``N[n]`` of internal node ``n`` from its bodies' total to its ``N_M``
-    (:func:`combine`), once its parent has summed it (a body's is its area, a
-    ground child has none)."""
+    """Kim 2008 eqs. 5-7: ``N[n]`` of internal node ``n`` from its bodies' total
+    to its ``N_M`` (:func:`combine`), once its parent has summed it (a body's is
+    its area, a ground child has none)."""
     if nb <= n < n_nodes:
         N[n] = combine(estimate, N1[n], N[n])
 
