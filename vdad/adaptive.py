@@ -78,6 +78,7 @@ from .region import (
     rebuild,
     region_poses,
     region_steps,
+    resume_cap,
     rk4_active,
     update_region,
 )
@@ -125,13 +126,16 @@ class StepStats:
 #: the columns of ``region_steps``' counters in the order of StepStats' fields
 _COUNTER_COLUMNS = np.array([STEP_COUNTERS.index(f.name) for f in fields(StepStats)
                              if f.name != "times"])
+#: ... and of the nodes a step rigidified and released
+_CHANGES = (STEP_COUNTERS.index("rigidified"), STEP_COUNTERS.index("released"))
 
 
 class History(Sequence):
     """The :class:`StepStats` of every adaptive step, in order (a read-only
     sequence; slices are lists). The compiled steps hand in their counters as
     blocks (:meth:`add_block`), turned into StepStats only when read: building
-    them cost 0.8 µs a step, 5 % of a 20-body step."""
+    them cost 0.8 µs a step, 5 % of a 20-body step. A step's StepStats equals
+    the adaptive dynamics' ``stats`` after it."""
 
     def __init__(self):
         self._stats = []               # StepStats of the steps read so far
@@ -141,23 +145,18 @@ class History(Sequence):
         """One step's :class:`StepStats`."""
         self._pending.append(stats)
 
-    def add_block(self, rows, seconds, visibility, last):
+    def add_block(self, rows, seconds, visibility):
         """Steps of :meth:`AdaptiveDynamics.run`: their counters ``rows`` (k, 9) in
-        the order of ``vdad.region.STEP_COUNTERS``, ``seconds`` per step, the coverage
-        ``visibility`` (s) timed before the first, and ``last``, the StepStats of the
-        last row (the adaptive dynamics' ``stats``)."""
-        self._pending.append((rows, seconds, visibility, last))
+        the order of ``vdad.region.STEP_COUNTERS``, ``seconds`` per step and the
+        coverage ``visibility`` (s) timed before the first (:func:`block_stats`)."""
+        self._pending.append((rows, seconds, visibility))
 
     def _read(self):
         for item in self._pending:
             if isinstance(item, StepStats):
                 self._stats.append(item)
                 continue
-            rows, seconds, visibility, last = item
-            for k, row in enumerate(rows[:-1, _COUNTER_COLUMNS].tolist()):
-                self._stats.append(StepStats(*row, times=step_times(
-                    seconds, visibility if k == 0 else 0.0)))
-            self._stats.append(last)
+            self._stats.extend(block_stats(*item))
         self._pending.clear()
         return self._stats
 
@@ -173,6 +172,12 @@ class History(Sequence):
 
     def __repr__(self):
         return f"History({len(self)} steps)"
+
+
+def block_stats(rows, seconds, visibility):
+    """The :class:`StepStats` of steps run in compiled code (:meth:`History.add_block`)."""
+    return [StepStats(*row, times=step_times(seconds, visibility if k == 0 else 0.0))
+            for k, row in enumerate(rows[:, _COUNTER_COLUMNS].tolist())]
 
 
 def step_times(seconds, visibility):
@@ -348,11 +353,6 @@ class AdaptiveDynamics:
                             np.empty((nb, 6)), np.empty(model.nv))
         self._force_key, self._force_order = None, None
         self._force_F = None                            # the tables of _force_order
-        g = self.groups          # run(): the groups' force sums, state before a step,
-        self._run_work = ((g.f_ext, g.pending, g.mark, g.order, g.is_B),   # counters,
-                          (np.empty(model.nq), np.empty(model.nv)),       # no forces
-                          np.zeros((512, len(STEP_COUNTERS)), np.int64),
-                          ForceTables(Forces(model, [])).arrays(np.zeros(1)))
         self._roots = np.flatnonzero(tree.up == -1).astype(np.int64)
         self._top = np.asarray(tree.top, np.int64)
         self._stack = np.zeros((3, n + 2), np.int64)
@@ -364,9 +364,35 @@ class AdaptiveDynamics:
         self._energy = np.array([np.inf, 0.0, 0.0, 0.0])
         self._cappable = energy == "cap" and not np.any(plan(model).stage_stiffness)
         self._left = (np.full(model.nq, np.nan), np.full(model.nv, np.nan))
+        # run(): the arguments of region_steps that are this object's same arrays at
+        # every call (not the model's: a deep copy's would be writable, and numba would
+        # compile the kernels again for them): the groups' arrays and force sums; the
+        # force work; the state before a step and the counters; no forces
+        g = self.groups
+        self._loop_args = (
+            (g.arrays, self._top, g.up, self._roots, (g.f_ext, g.pending, g.mark, g.order, g.is_B)),
+            (self._force_work[0].arrays, *self._force_work[1:]),
+            (self.kin.arrays, self.data.arrays, r.arrays, self._stack,
+             (np.empty(model.nq), np.empty(model.nv)),
+             np.zeros((512, len(STEP_COUNTERS)), np.int64)),
+            ForceTables(Forces(model, [])).arrays(np.zeros(1)))
         self.step_count = 0
         self.stats = StepStats()
         self._rebuild()
+
+    @property
+    def stats(self):
+        """The :class:`StepStats` of the last step (built when read after compiled
+        steps, :meth:`run`)."""
+        if self._stats is None:
+            rows, seconds, visibility = self._last_block
+            self._stats = block_stats(rows[-1:], seconds,
+                                      visibility if len(rows) == 1 else 0.0)[0]
+        return self._stats
+
+    @stats.setter
+    def stats(self, value):
+        self._stats = value
 
     # --- state --------------------------------------------------------------------------
 
@@ -645,18 +671,13 @@ class AdaptiveDynamics:
         return float(out[0])
 
     def _cap_from(self, q, qd, forced):
-        """The cap for steps from ``(q, qd)``: none under forces that do work or
-        with ``energy="free"``; the energy of ``(q, qd)`` unless it is the state
-        the last capped steps left."""
-        left_q, left_qd = self._left
-        if forced or not self._cappable:
-            self._energy[0] = np.inf
-            left_q[:] = np.nan
-            return
-        if np.isfinite(self._energy[0]) and (q == left_q).all() and (qd == left_qd).all():
-            return
-        self._energy[0] = np.nan
-        self._cap(q, qd)
+        """The cap for steps from ``(q, qd)`` (:func:`vdad.region.resume_cap`):
+        none under forces that do work or with ``energy="free"``; the energy of
+        ``(q, qd)`` unless it is the state the last capped steps left."""
+        with compiling(resume_cap):
+            resume_cap(forced or not self._cappable, self._energy, self._left, self.model.nb,
+                       plan(self.model).arrays, body_arrays(self.model), self.groups.arrays,
+                       self._top, self.region.arrays, q, qd, self.kin.arrays)
 
     def _cap(self, q, qd):
         """:func:`vdad.region.cap_energy` on ``(q, qd)`` (in place); keeps the state."""
@@ -748,7 +769,8 @@ class AdaptiveDynamics:
         accelerations were not finite, 2 if its state failed the checks (``q``,
         ``qd`` hold that state, ``q_last``, ``qd_last`` the one before; the step
         counts as done for adaptive dynamics, as :meth:`step` would)."""
-        sums, last, counters, no_forces = self._run_work
+        head, force_work, tail, no_forces = self._loop_args
+        last, counters = tail[-2:]
         F, e0 = (no_forces, 0) if tables is None else tables
         options = (self.predictive, 0 if self.budget is None else self.budget,
                    self._lookahead_steps,
@@ -773,26 +795,23 @@ class AdaptiveDynamics:
                     self._stale_coverage = False
                     vis = time.perf_counter() - t0
                 m = min(m, self.coverage_every - self.step_count % self.coverage_every)
+        cap_off = tables is not None or self.groups.any_force or not self._cappable
         t0 = time.perf_counter()
-        self._cap_from(q, qd, tables is not None or self.groups.any_force)
         with compiling(region_steps):
             done, status = region_steps(
-                m, self.step_count, time0, e0, self._refresh_on_change, options,
-                self.model.nb, *self._args()[:4], self._top, self.groups.up, self._roots, sums,
-                tables is not None, F,
-                (self.force_joints(F), self._force_work[0].arrays, *self._force_work[1:]),
-                coverage, self._energy, rotational, q, qd, self.kin.arrays, self.data.arrays,
-                r.arrays, self._stack, last, counters)
-        if np.isfinite(self._energy[0]):
-            self._left[0][:], self._left[1][:] = q, qd
+                m, self.step_count, time0, e0, self._refresh_on_change, options, self.model.nb,
+                plan(self.model).arrays, self.tree.arrays, body_arrays(self.model), *head,
+                tables is not None, F, (self.force_joints(F), *force_work), coverage,
+                self._energy, cap_off, self._left, rotational, q, qd, *tail)
         rows = done + (status == 2)
         each = (time.perf_counter() - t0) / max(rows, 1)
         if rows:
-            self.stats = StepStats(*counters[rows - 1, _COUNTER_COLUMNS].tolist(),
-                                   times=step_times(each, vis if rows == 1 else 0.0))
+            block = counters[:rows].copy()
+            self._stats, self._last_block = None, (block, each, vis)
             if history is not None:
-                history.add_block(counters[:rows].copy(), each, vis, self.stats)
-            if self.stats.rigidified + self.stats.released:
+                history.add_block(block, each, vis)
+            row = block[-1]
+            if row[_CHANGES[0]] or row[_CHANGES[1]]:
                 self._stale_coverage = self._refresh_on_change
         self.step_count += rows
         if tables is not None:

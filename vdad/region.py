@@ -1266,6 +1266,47 @@ def cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin):
     return False
 
 
+@pass_kernel
+def resume_cap(off, energy, left, nb, js, bodies, groups, top, region, q, qd, kin):
+    """The energy cap (``docs/adaptive.md``) for steps from ``(q, qd)``: none
+    if ``off`` (forces that do work, or ``energy="free"``); the same cap while
+    ``(q, qd)`` is the state ``left`` = (q, qd) that the last capped steps left
+    (:func:`hold_cap`); else the energy of ``(q, qd)`` (:func:`cap_energy`).
+    Returns whether ``kin`` then holds the active joints' kinematics at
+    ``(q, qd)``."""
+    left_q, left_qd = left
+    if off:
+        energy[0] = np.inf
+        left_q[:] = np.nan
+        return False
+    if np.isfinite(energy[0]) and same(q, left_q) and same(qd, left_qd):
+        return False
+    energy[0] = np.nan
+    placed = cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin)
+    hold_cap(energy, left, q, qd)
+    return placed
+
+
+@inlined
+def hold_cap(energy, left, q, qd):
+    """Under a finite energy cap, ``left`` = (q, qd), the state whose cap
+    :func:`resume_cap` keeps."""
+    if np.isfinite(energy[0]):
+        for i in range(q.shape[0]):
+            left[0][i] = q[i]
+        for i in range(qd.shape[0]):
+            left[1][i] = qd[i]
+
+
+@inlined
+def same(a, b):
+    """Whether the vectors ``a`` and ``b`` (n,) are equal."""
+    for i in range(a.shape[0]):
+        if a[i] != b[i]:
+            return False
+    return True
+
+
 # --- integration of the active joints ---------------------------------------------------------
 
 @pass_kernel
@@ -1364,8 +1405,8 @@ def forces_now(use, F, e, t, js, q, qd, fkin, states, f_ext, tau, held, active, 
 
 @pass_kernel
 def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies, groups,
-                 top, up, roots, sums, use_forces, F, force_work, coverage, energy, rotational, q,
-                 qd, kin, work, region, stack, last, counters):
+                 top, up, roots, sums, use_forces, F, force_work, coverage, energy, cap_off, left,
+                 rotational, q, qd, kin, work, region, stack, last, counters):
     """Up to ``n`` adaptive steps by semi-implicit Euler, the first numbered
     ``step0 + 1`` by adaptive dynamics and at ``t = time0 dt`` (the simulator's
     step count), each as ``AdaptiveDynamics.step`` takes it from Python:
@@ -1379,8 +1420,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     ``sums`` = the force sums held by the groups and ``carry_forces``' scratch;
     ``force_work`` = (the joints whose kinematics the forces read,
     ``AdaptiveDynamics.force_joints``; kinematics, states, f_ext, tau of every
-    body); ``energy``: the energy cap's (:func:`cap_energy`, applied after each
-    step); ``coverage`` = (constants, frames) of
+    body); ``energy``, ``cap_off``, ``left``: the energy cap's (:func:`resume_cap`
+    before the steps, :func:`cap_energy` after each); ``coverage`` = (constants, frames) of
     ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
     :func:`vdad.visibility.region_bvh_pass` before the steps ``frames[0]``
     (ascending) of the call, each under its camera (none if empty), from the
@@ -1398,7 +1439,9 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     active, counts, qdd = region[0], region[10], work[7]
     (codes, first, poses, volumes, cache, world, N1, moved, scratch), (due, views, Rcs, pcs) = \
         coverage
-    f, placed = 0, False          # placed: kin holds the active joints' at (q, qd)
+    # placed: kin holds the active joints' kinematics at (q, qd)
+    placed = resume_cap(cap_off, energy, left, nb, js, bodies, groups, top, region, q, qd, kin)
+    f, done, status = 0, n, 0
     for s in range(n):
         step = step0 + s
         t = (time0 + s) * dt
@@ -1427,7 +1470,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         if not evaluate(True, predictive, budget, False, placed, lookahead_on, locking, step + 1,
                         dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
                         qd, tau, kin, work, region):
-            return s, 1
+            done, status = s, 1
+            break
         if locking and counts[ACCELERATED] < counts[ASSEMBLED]:
             nc = lock_pruned(nb, up, region, stack)
             if nc:
@@ -1444,7 +1488,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             if not evaluate(False, predictive, budget, False, False, lookahead_on, locking,
                             step + 1, dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top,
                             up, roots, q, qd, tau, kin, work, region):
-                return s, 1
+                done, status = s, 1
+                break
         euler_active(dt, js, bodies, region, q, qd, qdd)
         row[2], row[3], row[4], row[6] = (counts[ACCELERATED], counts[ASSEMBLED], counts[SOLVED],
                                           counts[LOOKAHEAD])
@@ -1461,7 +1506,10 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             row[8] += counts[RELEASED]
         placed = cap_energy(energy, nb, js, bodies, groups, top, region, q, qd, kin)
         if not active_state_ok(dt, js, bodies, region, rotational, q, qd):
-            return s, 2
+            done, status = s, 2
+            break
         if stop_on_change and row[7] + row[8]:
-            return s + 1, 0
-    return n, 0
+            done = s + 1
+            break
+    hold_cap(energy, left, q, qd)
+    return done, status

@@ -396,18 +396,14 @@ def idle_loop_coverage(tree):
     cache = (box, np.zeros(1), tuple(a[0] for a in box))
     constants = (np.zeros(4, np.int64), np.zeros(1, np.int64), box[1:], box, cache, box,
                  np.zeros(1), moved_arrays(tree), (np.empty((3, 3)), box_scratch()))
-    return _empty_like(constants), _frames([], [])
+    return _empty_like(constants), _frames(0)
 
 
-def _frames(steps, cameras):
-    """The ``steps`` (k,) of the frames, and the intrinsics (k, 4) and world poses
-    (k, 3, 3), (k, 3) of their cameras, as the compiled adaptive steps take them:
-    ``cameras`` (k) gives each camera's :func:`camera_arrays`."""
-    k = len(cameras)
-    views, Rc, pc = np.zeros((k, 4)), np.zeros((k, 3, 3)), np.zeros((k, 3))
-    for i, (view, R, p) in enumerate(cameras):
-        views[i], Rc[i], pc[i] = view, R, p
-    return np.array(steps, np.int64).reshape(k), views, Rc, pc
+def _frames(k):
+    """Room for ``k`` frames as the compiled adaptive steps take them: their
+    steps (k,), and the intrinsics (k, 4) and world poses (k, 3, 3), (k, 3) of
+    their cameras (:func:`camera_arrays`)."""
+    return np.zeros(k, np.int64), np.zeros((k, 4)), np.zeros((k, 3, 3)), np.zeros((k, 3))
 
 
 def camera_arrays(camera):
@@ -507,7 +503,10 @@ class BoundingVolumes(_Coverage):
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
                                 pixels == "moved", 1], np.int64)   # [3]: set at each call
         self._threaded = bool(in_parallel(self.model.nb, self._forest[1]))
-        self._no_frames = _frames([], [])
+        self._no_frames = self._frame_rows = _frames(0)
+        self._held = []                  # the camera arrays each frame row holds
+        self._loop_constants = (self._codes, tree.first, self._poses, self.body, self._cache,
+                                self.world, self._N1, self._moved, self._scratch)
 
     @property
     def covers_every_node(self):
@@ -554,11 +553,18 @@ class BoundingVolumes(_Coverage):
             return None
         self._bind(adaptive)
         self._runs()
-        constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
-                     self.world, self._N1, self._moved, self._scratch)
-        if not len(times):
-            return constants, self._no_frames
-        return constants, _frames(steps, [self._camera_arrays(t) for t in times])
+        k = len(times)
+        if not k:
+            return self._loop_constants, self._no_frames
+        if k > len(self._frame_rows[0]):
+            self._frame_rows, self._held = _frames(2 * k), [None] * (2 * k)
+        due, views, Rc, pc = self._frame_rows
+        for i in range(k):
+            due[i] = steps[i]
+            camera = self._camera_arrays(times[i])
+            if camera is not self._held[i]:
+                views[i], Rc[i], pc[i] = self._held[i] = camera
+        return self._loop_constants, (due[:k], views[:k], Rc[:k], pc[:k])
 
     def _runs(self):
         """The runs of a large forest's subtrees on threads (``codes[3]``,
