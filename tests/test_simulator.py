@@ -13,6 +13,7 @@ import vdad
 import vdad.dca
 import vdad.kinematics
 import vdad.region
+import vdad.visibility
 from vdad.integrators import integrate_configuration
 from vdad.quantities import spatial_momentum, total_energy
 from vdad.scenes import pendulum
@@ -516,16 +517,20 @@ def test_step_loop_loaded_from_the_cache_in_a_fresh_process():
 
 
 
-@pytest.mark.parametrize("options", [{}, {"method": "adaptive", "budget": 3}])
+@pytest.mark.parametrize("options", [{}, {"method": "adaptive", "budget": 3},
+                                     {"method": "view-bvh", "threshold": 1e-3,
+                                      "pixels": "moved"}])
 def test_a_copied_simulator_runs_the_same_compiled_kernels(options):
     """copy.deepcopy of a simulator shares its immutable model and tree (the same
     objects, read-only arrays and all), so the copy steps with the kernels already
     compiled for the original instead of compiling a second version of each (two
-    minutes for the adaptive passes) and gives the same state."""
+    minutes for the adaptive passes) and gives the same state; so does a
+    view-dependent one, whose bounding volumes run inside the compiled steps."""
     scene = pendulum(8)
-    sim = vdad.Simulator(scene.model, scene.q0, **options)
+    sim = scene.simulator(**options) if options.get("pixels") else vdad.Simulator(
+        scene.model, scene.q0, **options)
     sim.step(2)
-    kernels = [k for m in (vdad.dca, vdad.kinematics, vdad.region)
+    kernels = [k for m in (vdad.dca, vdad.kinematics, vdad.region, vdad.visibility)
                for k in vars(m).values() if isinstance(k, CPUDispatcher)]
     compiled = {k: len(k.signatures) for k in kernels}
     twin = copy.deepcopy(sim)

@@ -505,8 +505,6 @@ class BoundingVolumes(_Coverage):
         self._threaded = bool(in_parallel(self.model.nb, self._forest[1]))
         self._no_frames = self._frame_rows = _frames(0)
         self._held = []                  # the camera arrays each frame row holds
-        self._loop_constants = (self._codes, tree.first, self._poses, self.body, self._cache,
-                                self.world, self._N1, self._moved, self._scratch)
 
     @property
     def covers_every_node(self):
@@ -553,9 +551,13 @@ class BoundingVolumes(_Coverage):
             return None
         self._bind(adaptive)
         self._runs()
+        # the tree's own array: a deep copy's would be writable, and numba would
+        # compile the steps again for it
+        constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
+                     self.world, self._N1, self._moved, self._scratch)
         k = len(times)
         if not k:
-            return self._loop_constants, self._no_frames
+            return constants, self._no_frames
         if k > len(self._frame_rows[0]):
             self._frame_rows, self._held = _frames(2 * k), [None] * (2 * k)
         due, views, Rc, pc = self._frame_rows
@@ -564,7 +566,7 @@ class BoundingVolumes(_Coverage):
             camera = self._camera_arrays(times[i])
             if camera is not self._held[i]:
                 views[i], Rc[i], pc[i] = self._held[i] = camera
-        return self._loop_constants, (due[:k], views[:k], Rc[:k], pc[:k])
+        return constants, (due[:k], views[:k], Rc[:k], pc[:k])
 
     def _runs(self):
         """The runs of a large forest's subtrees on threads (``codes[3]``,
