@@ -542,6 +542,23 @@ def test_a_copied_simulator_runs_the_same_compiled_kernels(options):
     assert {k: len(k.signatures) for k in kernels} == compiled
 
 
+def test_a_simulator_with_python_forces_is_copied_after_stepping():
+    """With a Python controller the DCA runs from Python (``dca.dca_call``), and
+    its work arrays hold the packed arguments (``vdad._pack``), which numba cannot
+    copy: copy.deepcopy leaves them out, the copy builds its own and steps as the
+    original does."""
+    scene = pendulum(5)
+    sim = scene.simulator(controller=lambda t, q, qd: -0.1 * qd)
+    sim.step(3)
+    assert sim.data.packed is not None
+    twin = copy.deepcopy(sim)
+    assert twin.data.packed is None
+    twin.step(4)
+    sim.step(4)
+    np.testing.assert_array_equal(twin.q, sim.q)
+    assert twin.data.packed is not sim.data.packed
+
+
 def test_view_methods_evaluate_coverage_once_per_displayed_frame_by_default():
     """docs/visibility.md, coverage once per frame: view-bvh and view-oq default to
     the steps of one 60 Hz frame (17 at 1 ms, 8 at 2 ms, never below 1); a given

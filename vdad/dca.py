@@ -119,6 +119,11 @@ class DCAData:
     kept: bool
     packed: object = None
 
+    def __getstate__(self):
+        """A copy (``copy.deepcopy``, pickle) leaves the pack out: it holds these
+        arrays, and numba cannot copy it; :func:`packed` builds the copy's own."""
+        return {**self.__dict__, "packed": None}
+
     @property
     def arrays(self) -> tuple:
         return (self.Phi, self.b, self.Y, self.WtWm, self.beta, self.gamma, self.f_J, self.qdd,
