@@ -154,6 +154,24 @@ def finite(x):
     return True
 
 
+@inlined
+def same(a, b):
+    """Whether the vectors ``a`` and ``b`` (n,) are equal."""
+    for i in range(a.shape[0]):
+        if a[i] != b[i]:
+            return False
+    return True
+
+
+@inlined
+def copy_state(q, qd, out):
+    """``out`` = (q, qd), entry by entry (a slice assignment would allocate)."""
+    for i in range(q.shape[0]):
+        out[0][i] = q[i]
+    for i in range(qd.shape[0]):
+        out[1][i] = qd[i]
+
+
 # --- 6x6 and 6-vector products ---------------------------------------------------------
 
 @inlined

@@ -44,6 +44,7 @@ import numpy as np
 from ._linalg import (
     cholesky,
     cholesky_solve,
+    copy_state,
     identity_pose,
     inlined,
     mm3,
@@ -54,6 +55,7 @@ from ._linalg import (
     pass_kernel,
     port_transform,
     relative_pose,
+    same,
     symmetric_part,
 )
 from .dca import (
@@ -1292,19 +1294,7 @@ def hold_cap(energy, left, q, qd):
     """Under a finite energy cap, ``left`` = (q, qd), the state whose cap
     :func:`resume_cap` keeps."""
     if np.isfinite(energy[0]):
-        for i in range(q.shape[0]):
-            left[0][i] = q[i]
-        for i in range(qd.shape[0]):
-            left[1][i] = qd[i]
-
-
-@inlined
-def same(a, b):
-    """Whether the vectors ``a`` and ``b`` (n,) are equal."""
-    for i in range(a.shape[0]):
-        if a[i] != b[i]:
-            return False
-    return True
+        copy_state(q, qd, left)
 
 
 # --- integration of the active joints ---------------------------------------------------------
@@ -1435,7 +1425,6 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         options
     held, pending, mark, order, is_B = sums
     fjs, fkin, states, f_ext, tau = force_work
-    q_last, qd_last = last
     active, counts, qdd = region[0], region[10], work[7]
     (codes, first, poses, volumes, cache, world, N1, moved, scratch), (due, views, Rcs, pcs) = \
         coverage
@@ -1456,10 +1445,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                              groups[6]), region[3], kin[5], kin[6], poses, volumes, cache, world,
                             N1, region[17], moved, scratch)
             f += 1
-        for i in range(q.shape[0]):
-            q_last[i] = q[i]
-        for i in range(qd.shape[0]):
-            qd_last[i] = qd[i]
+        copy_state(q, qd, last)
         row = counters[s]
         for c in range(row.shape[0]):
             row[c] = 0
