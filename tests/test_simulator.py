@@ -11,6 +11,7 @@ from strategies import random_chain, random_configuration, with_armature
 
 import vdad
 import vdad.dca
+import vdad.integrators
 import vdad.kinematics
 import vdad.region
 import vdad.visibility
@@ -351,6 +352,34 @@ def test_compiled_steps_equal_the_python_steps_on_every_scene(name):
     assert np.abs(fast.qd).max() > 0.1                        # it moved
 
 
+@pytest.mark.parametrize("method", ["dca", "adaptive"])
+def test_forces_set_between_calls_are_the_ones_the_compiled_steps_apply(method):
+    """The compiled steps take the force tables in a pack that a simulator keeps
+    while its tables are the same object (``vdad._pack.pack_once``): forces set
+    between two calls are the ones the next call applies, as the same forces as
+    Python callables (the Python-level step) give, to 1e-12."""
+    from vdad.forces import Drag, Forces
+
+    scene = pendulum(6)
+    model = scene.model
+    weak, strong = (Forces(model, [Drag(model, c)]) for c in (0.05, 3.0))
+    options = {} if method == "dca" else {"method": "adaptive", "threshold": 1e-6}
+    runs = []
+    for wrap in (False, True):
+        sim = vdad.Simulator(model, scene.q0, **options)
+        for forces in (weak, strong, weak):
+            sim.external = (lambda t, q, qd, f=forces: f.external(t, q, qd)) if wrap \
+                else forces.external
+            assert (sim.force_tables() is None) == wrap
+            sim.step(40)
+        runs.append(sim)
+    fast, slow = runs
+    for a, b in ((fast.q, slow.q), (fast.qd, slow.qd)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * max(1.0, np.abs(b).max()))
+    weak_only = vdad.Simulator(model, scene.q0, external=weak.external, **options).step(120)
+    assert np.abs(weak_only.qd - fast.qd).max() > 1e-3            # the strong drag acted
+
+
 @pytest.mark.parametrize("name, integrator", [(n, "semi-implicit") for n in sorted(SCENES)]
                          + [("falling character", "rk4")])
 def test_adaptive_steps_evaluate_the_built_in_forces_in_compiled_code(name, integrator):
@@ -530,16 +559,20 @@ def test_a_copied_simulator_runs_the_same_compiled_kernels(options):
     sim = scene.simulator(**options) if options.get("pixels") else vdad.Simulator(
         scene.model, scene.q0, **options)
     sim.step(2)
-    kernels = [k for m in (vdad.dca, vdad.kinematics, vdad.region, vdad.visibility)
+    kernels = [k for m in (vdad.dca, vdad.integrators, vdad.kinematics, vdad.region,
+                           vdad.visibility)
                for k in vars(m).values() if isinstance(k, CPUDispatcher)]
     compiled = {k: len(k.signatures) for k in kernels}
     twin = copy.deepcopy(sim)
     assert twin.model is sim.model and copy.copy(sim.model) is sim.model
     assert not twin.model.mass.flags.writeable
+    packs = (twin.adaptive or twin)._packs                  # numba cannot copy a pack
+    assert packs == (None,) * len(packs) != (sim.adaptive or sim)._packs
     twin.step(3)
     sim.step(3)
     np.testing.assert_array_equal(twin.q, sim.q)
     assert {k: len(k.signatures) for k in kernels} == compiled
+    assert (twin.adaptive or twin)._packs[0] is not (sim.adaptive or sim)._packs[0]
 
 
 def test_a_simulator_with_python_forces_is_copied_after_stepping():

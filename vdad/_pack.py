@@ -6,9 +6,12 @@ gymnasium, the DCA's 77 arrays cost 2.3 µs and 3.5 µs per call, more than a
 third of the DCA itself; ``docs/benchmarks.md``). A :class:`Pack` holds a tuple
 of arrays, nested as a pass takes them, for compiled code: it is built once,
 typed and unboxed as one pointer, and a kernel that takes it hands the tuple on
-to the pass (``vdad.dca.dca_call``). The arrays are the same objects: what the
-pass writes into them is seen from Python, and the pack keeps them alive. An
-array replaced on the Python side is not seen: build a new pack.
+to the pass (``vdad.dca.dca_call``, ``vdad.integrators.dca_steps``,
+``vdad.region.region_call``). The arrays are the same objects: what the pass
+writes into them is seen from Python, and the pack keeps them alive. An array
+replaced on the Python side is not seen: build a new pack (:func:`pack_once`
+builds one when its key changes). numba cannot copy a pack: an object that
+keeps one leaves it out of its copies (``__getstate__``).
 """
 
 from __future__ import annotations
@@ -48,3 +51,13 @@ def pack(data):
     (``NUMBA_DISABLE_JIT=1``), where a StructRef cannot be built, an object with
     the same field."""
     return SimpleNamespace(data=data) if config.DISABLE_JIT else _compiled_pack(data)
+
+
+def pack_once(held, key, build=None):
+    """``held``, a pair ``(key, pack)`` (or None), if its key is ``key`` itself;
+    else ``(key, pack(build()))`` (``build`` None: the pack of ``key``). A caller
+    that keeps the pair builds a pack only when its arrays change: packing
+    converts every array once, as a call does."""
+    if held is not None and held[0] is key:
+        return held
+    return key, pack(key if build is None else build())

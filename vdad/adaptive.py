@@ -40,6 +40,7 @@ import numpy as np
 
 from . import joints as J
 from ._linalg import as_input, compiling
+from ._pack import pack, pack_once
 from .checks import (
     check_callable,
     check_count,
@@ -76,8 +77,8 @@ from .region import (
     lock_pruned,
     lookahead_due,
     rebuild,
+    region_call,
     region_poses,
-    region_steps,
     resume_cap,
     rk4_active,
     update_region,
@@ -365,9 +366,8 @@ class AdaptiveDynamics:
         self._cappable = energy == "cap" and not np.any(plan(model).stage_stiffness)
         self._left = (np.full(model.nq, np.nan), np.full(model.nv, np.nan))
         # run(): the arguments of region_steps that are this object's same arrays at
-        # every call (not the model's: a deep copy's would be writable, and numba would
-        # compile the kernels again for them): the groups' arrays and force sums; the
-        # force work; the state before a step and the counters; no forces
+        # every call, packed at the first (region_call): the groups' arrays and force
+        # sums; the force work; the state before a step and the counters; no forces
         g = self.groups
         self._loop_args = (
             (g.arrays, self._top, g.up, self._roots, (g.f_ext, g.pending, g.mark, g.order, g.is_B)),
@@ -376,9 +376,16 @@ class AdaptiveDynamics:
              (np.empty(model.nq), np.empty(model.nv)),
              np.zeros((512, len(STEP_COUNTERS)), np.int64)),
             ForceTables(Forces(model, [])).arrays(np.zeros(1)))
+        # run()'s packs: its constants; (key, pack) pairs of the forces and volumes
+        self._packs = (None, None, None)
         self.step_count = 0
         self.stats = StepStats()
         self._rebuild()
+
+    def __getstate__(self):
+        """A copy (``copy.deepcopy``, pickle) leaves the packs of :meth:`run` out:
+        numba cannot copy them, and they hold this object's arrays."""
+        return {**self.__dict__, "_packs": (None, None, None)}
 
     @property
     def stats(self):
@@ -777,7 +784,7 @@ class AdaptiveDynamics:
                    self.drop == "lock", self.policy == "momentum", self.dwell, self.dt,
                    self._keep, self.kappa, np.inf if self.threshold is None else self.threshold)
         r, vis, m = self.region, 0.0, min(n, len(counters))
-        coverage = self._idle_coverage
+        coverage, estimator = self._idle_coverage, None
         if self.coverage is not None:
             first = -self.step_count % self.coverage_every        # the next frame's step
             due = list(range(first, m, self.coverage_every))
@@ -787,7 +794,7 @@ class AdaptiveDynamics:
             times = [(time0 + s) * self.dt for s in due]
             in_loop = None if loop is None else loop(due, times, self)
             if in_loop is not None:             # bounding volumes, in the compiled steps
-                coverage, self._stale_coverage = in_loop, False
+                coverage, estimator, self._stale_coverage = in_loop, self.coverage, False
             else:
                 if due and due[0] == 0:
                     t0 = time.perf_counter()
@@ -795,14 +802,21 @@ class AdaptiveDynamics:
                     self._stale_coverage = False
                     vis = time.perf_counter() - t0
                 m = min(m, self.coverage_every - self.step_count % self.coverage_every)
+        constants, forces, volumes = self._packs
+        if constants is None:       # with the model's (a deep copy's would be writable)
+            constants = pack((self.model.nb, plan(self.model).arrays, self.tree.arrays,
+                              body_arrays(self.model), *head, force_work, self._energy,
+                              self._left, *tail))
+        forces = pack_once(forces, F, lambda: (F, self.force_joints(F)))
+        volumes = pack_once(volumes, estimator, lambda: coverage[0])
+        self._packs = (constants, forces, volumes)
         cap_off = tables is not None or self.groups.any_force or not self._cappable
         t0 = time.perf_counter()
-        with compiling(region_steps):
-            done, status = region_steps(
-                m, self.step_count, time0, e0, self._refresh_on_change, options, self.model.nb,
-                plan(self.model).arrays, self.tree.arrays, body_arrays(self.model), *head,
-                tables is not None, F, (self.force_joints(F), *force_work), coverage,
-                self._energy, cap_off, self._left, rotational, q, qd, *tail)
+        with compiling(region_call):
+            done, status = region_call(
+                constants, forces[1], volumes[1], coverage[1], m, self.step_count, time0, e0,
+                self._refresh_on_change, options, tables is not None, cap_off, rotational, q,
+                qd)
         rows = done + (status == 2)
         each = (time.perf_counter() - t0) / max(rows, 1)
         if rows:

@@ -755,7 +755,9 @@ class ForceTables:
                       cat([np.full(len(e.point_body), e.friction) for e in fc]),
                       cat([np.full(len(e.point_body), e.height) for e in fc]))
         self.pulses = kinds[RandomTorques]
-        self._fixed = None                   # arrays() where nothing depends on time
+        #: what :meth:`arrays` gives at every call where nothing depends on time
+        #: (None until its first call, or where something does)
+        self.fixed = None
         lim = [e.arrays for e in kinds[JointLimits]]
         self.limits = tuple(cat([a[i] for a in lim], i64 if i in (0, 1, 6, 7) else float)
                             for i in range(11))
@@ -773,8 +775,8 @@ class ForceTables:
         anchors and their velocities per evaluation (one row if none moves) and
         every random-torque pulse acting between the first and the last time.
         Without moving anchors and pulses, the same tuple at every call."""
-        if self._fixed is not None:
-            return self._fixed
+        if self.fixed is not None:
+            return self.fixed
         cat = self._cat
         moving = [e for e in self.springs if e.moving]
         rows = 1 if not moving else len(times)
@@ -797,7 +799,7 @@ class ForceTables:
         out = (*self.spring[:3], anchors, velocity, *self.spring[3:], *self.drag, *self.floor,
                *pulses, *self.limits)
         if not moving and not self.pulses:
-            self._fixed = out
+            self.fixed = out
         return out
 
 

@@ -326,8 +326,7 @@ def symplectic_step(e, t, dt, js, tree, bodies, inert, F, q, qd, p, previous, ki
 
 
 @kernel
-def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, qd, kin, work,
-              halvings, q_new, qd_new):
+def dca_steps(n, dt, step0, scheme, constants, tables, q, qd, q_new, qd_new):
     """Up to ``n`` steps of the DCA from step number ``step0`` (``t = step dt``),
     with the model's own forces (gravity, joint springs and dampers) and the
     built-in force elements of the tables ``F`` (:meth:`~vdad.forces.ForceTables.
@@ -342,8 +341,13 @@ def dca_steps(n, dt, step0, scheme, js, tree, bodies, inert, rotational, F, q, q
     finite (status 1) or that turns a rotational dof by more than half a turn
     (status 2), or whose symplectic step does not converge even in
     ``2^SYMPLECTIC_HALVINGS`` substeps (status 3, ``q``, ``qd`` left at that step's
-    start), leaving that step's state in ``q_new``, ``qd_new``. Returns ``(steps
-    done, status)``."""
+    start), leaving that step's state in ``q_new``, ``qd_new``. The arguments that
+    stay the same from call to call come in two packs (:class:`~vdad._pack.Pack`), so
+    that a call from Python converts ten arguments instead of some 130 (``vdad._pack``):
+    ``constants`` = (js, tree, bodies, inert, rotational, kin, work, halvings) and
+    ``tables`` = ``F``. Returns ``(steps done, status)``."""
+    js, tree, bodies, inert, rotational, kin, work, halvings = constants.data
+    F = tables.data
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
     nq, nv, nb = q.shape[0], qd.shape[0], bodies[0].shape[0]
     kq = np.empty((4, nq))

@@ -47,6 +47,7 @@ from ._linalg import (
     copy_state,
     identity_pose,
     inlined,
+    kernel,
     mm3,
     mm6,
     mmt6_add,
@@ -1499,3 +1500,22 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             break
     hold_cap(energy, left, q, qd)
     return done, status
+
+
+@kernel
+def region_call(constants, tables, volumes, frames, n, step0, time0, e0, stop_on_change,
+                options, use_forces, cap_off, rotational, q, qd):
+    """:func:`region_steps` with the arguments that stay the same from call to call
+    in three packs (:class:`~vdad._pack.Pack`), so that a call from Python converts
+    a dozen arrays instead of some 270 (``vdad._pack``): ``constants`` = (nb, js,
+    tree, bodies, groups, top, up, roots, sums, force work, energy, left, kin,
+    work, region, stack, last, counters), ``force work`` without its joint set;
+    ``tables`` = (F, the joint set of the forces' kinematics); ``volumes`` = the
+    constants of ``coverage``, whose ``frames`` come apart."""
+    (nb, js, tree, bodies, groups, top, up, roots, sums, force_work, energy, left, kin, work,
+     region, stack, last, counters) = constants.data
+    F, fjs = tables.data
+    return region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies,
+                        groups, top, up, roots, sums, use_forces, F, (fjs,) + force_work,
+                        (volumes.data, frames), energy, cap_off, left, rotational, q, qd, kin,
+                        work, region, stack, last, counters)

@@ -18,6 +18,7 @@ import numpy as np
 
 from . import dca
 from ._linalg import compiling
+from ._pack import pack, pack_once
 from .adaptive import AdaptiveDynamics, History, rotational_dofs
 from .assembly import check_tree
 from .baselines import DistanceLOD, Sleeping, articulated_bodies, root_last_tree
@@ -271,6 +272,7 @@ class Simulator:
         self.step_count = 0
         self._rotational = rotational_dofs(model)
         self.halvings = np.zeros(1, np.int64)
+        self._packs = (None, None)      # dca_steps' (constants, tables), (tuple, Pack) pairs
         self.history = History()
         self.adaptive = None
         self.camera = None if camera is None else check_path(camera)
@@ -293,6 +295,11 @@ class Simulator:
             self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
         if integrator == "symplectic":
             self._check_symplectic()
+
+    def __getstate__(self):
+        """A copy (``copy.deepcopy``, pickle) leaves the packs of :meth:`_compiled_steps`
+        out: numba cannot copy them, and they hold this simulator's arrays."""
+        return {**self.__dict__, "_packs": (None, None)}
 
     def _check_symplectic(self):
         """The symplectic integrator's conditions (:func:`~vdad.integrators.
@@ -420,9 +427,16 @@ class Simulator:
         if tables is None:
             return None
         try:
-            return tables.arrays(evaluation_times(self.step_count, m, self.dt, self._rk4))
+            return self._force_arrays(tables, m)
         except InputError:
             return None
+
+    def _force_arrays(self, tables, m):
+        """The :meth:`~vdad.forces.ForceTables.arrays` of ``tables`` for the next ``m``
+        steps (the same tuple at every call where nothing in them depends on time)."""
+        if tables.fixed is not None:
+            return tables.fixed
+        return tables.arrays(evaluation_times(self.step_count, m, self.dt, self._rk4))
 
     CHUNK = 512          # compiled steps per call: bounds the time-dependent force tables
     #: adaptive steps by semi-implicit Euler run in compiled code where the forces
@@ -444,24 +458,27 @@ class Simulator:
         return self.integrator_name == "rk4"
 
     def _compiled_steps(self, n):
-        rk4 = self._rk4
         scheme = SCHEMES[self.integrator_name]
         q_new, qd_new = np.empty_like(self.q), np.empty_like(self.qd)
         q, qd = self.q.copy(), self.qd.copy()
-        args = (plan(self.model).arrays, self.data.layout, dca.body_arrays(self.model),
-                dca.inert_arrays(self.model), self._rotational)
+        constants, tables = self._packs
+        if constants is None:
+            constants = (None, pack((plan(self.model).arrays, self.data.layout,
+                                     dca.body_arrays(self.model), dca.inert_arrays(self.model),
+                                     self._rotational, self.data.kin.arrays, self.data.arrays,
+                                     self.halvings)))
         while n > 0:
             m = min(n, self.CHUNK)
             try:
-                F = self.force_tables().arrays(evaluation_times(self.step_count, m, self.dt,
-                                                                rk4))
+                F = self._force_arrays(self.force_tables(), m)
             except InputError:              # a moving anchor failed: find its step in Python
                 self.q, self.qd = q, qd
                 return self._python_steps(n)
+            tables = pack_once(tables, F)
+            self._packs = (constants, tables)
             with compiling(dca_steps):
-                done, status = dca_steps(m, self.dt, self.step_count, scheme, *args, F, q, qd,
-                                         self.data.kin.arrays, self.data.arrays,
-                                         self.halvings, q_new, qd_new)
+                done, status = dca_steps(m, self.dt, self.step_count, scheme, constants[1],
+                                         tables[1], q, qd, q_new, qd_new)
             self.q, self.qd = q.copy(), qd.copy()
             self._advance(done)
             if status == 3:
