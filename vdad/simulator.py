@@ -272,7 +272,8 @@ class Simulator:
         self.step_count = 0
         self._rotational = rotational_dofs(model)
         self.halvings = np.zeros(1, np.int64)
-        self._packs = (None, None)      # dca_steps' (constants, tables), (tuple, Pack) pairs
+        # dca_steps' packs: its constants; the (force tables, pack) pair
+        self._packs = (None, None)
         self.history = History()
         self.adaptive = None
         self.camera = None if camera is None else check_path(camera)
@@ -463,10 +464,10 @@ class Simulator:
         q, qd = self.q.copy(), self.qd.copy()
         constants, tables = self._packs
         if constants is None:
-            constants = (None, pack((plan(self.model).arrays, self.data.layout,
-                                     dca.body_arrays(self.model), dca.inert_arrays(self.model),
-                                     self._rotational, self.data.kin.arrays, self.data.arrays,
-                                     self.halvings)))
+            constants = pack((plan(self.model).arrays, self.data.layout,
+                              dca.body_arrays(self.model), dca.inert_arrays(self.model),
+                              self._rotational, self.data.kin.arrays, self.data.arrays,
+                              self.halvings))
         while n > 0:
             m = min(n, self.CHUNK)
             try:
@@ -477,7 +478,7 @@ class Simulator:
             tables = pack_once(tables, F)
             self._packs = (constants, tables)
             with compiling(dca_steps):
-                done, status = dca_steps(m, self.dt, self.step_count, scheme, constants[1],
+                done, status = dca_steps(m, self.dt, self.step_count, scheme, constants,
                                          tables[1], q, qd, q_new, qd_new)
             self.q, self.qd = q.copy(), qd.copy()
             self._advance(done)
