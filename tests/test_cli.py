@@ -135,6 +135,25 @@ def test_run_budget_keeps_the_budget(tmp_path):
     assert data["counters_mean"]["accelerated"] <= 5
 
 
+def test_run_metric_weights_reach_the_metric(tmp_path):
+    """--weights scales the acceleration metric (and the velocity metric, unless
+    --velocity-weights is given): heavier weights keep more joints active."""
+    means = {}
+    for name, extra in (("default", []), ("heavy", ["--weights", "1e4"]),
+                        ("both", ["--weights", "1e4", "--velocity-weights", "2"])):
+        out = tmp_path / f"{name}.json"
+        assert main(["run", "pendulum", "--bodies", "12", "--steps", "300", "--method",
+                     "adaptive", "--threshold", "1e-5", *extra, "--json", str(out),
+                     "--no-progress"]) == 0
+        data = json.loads(out.read_text())
+        means[name] = data["active_joints_mean"]
+        options = data["options"]
+        if name == "default":
+            assert "weights" not in options and "velocity_weights" not in options
+    assert options["weights"] == 1e4 and options["velocity_weights"] == 2.0
+    assert means["heavy"] > means["default"] + 1
+
+
 @pytest.mark.parametrize("argv, message", [
     (["run", "pendulum", "--threshold", "1e-3"],
      "--threshold applies to --method adaptive, --method view-bvh or --method view-oq, not to "
@@ -142,6 +161,9 @@ def test_run_budget_keeps_the_budget(tmp_path):
     (["run", "pendulum", "--method", "adaptive", "--threshold", "1e-3", "--budget", "3"],
      "exactly one of --threshold or --budget"),
     (["run", "pendulum", "--method", "adaptive", "--kappa", "0.5"], "--kappa must be >= 1"),
+    (["run", "pendulum", "--weights", "2"],
+     "--weights applies to --method adaptive, --method view-bvh, --method view-oq, --method "
+     "lod-distance or --method sleeping, not to --method dca"),
     (["run", "pendulum", "--method", "adaptive", "--volume", "obb"],
      "--volume applies to --method view-bvh, not to --method adaptive"),
     (["run", "pendulum", "--method", "view-bvh", "--counting", "merged"],
@@ -289,7 +311,8 @@ def test_baseline_option_errors(argv, message, capsys):
      "--threshold applies to --method adaptive, not to --method dca"),
     ("kappa must be >= 1, got 0.5", "--kappa must be >= 1, got 0.5"),
     ("sleep_time must be positive", "--sleep-time must be positive"),
-    ("coverage_every= and weights= do not apply", "--coverage-every and weights= do not apply"),
+    ("coverage_every= and tree= do not apply", "--coverage-every and tree= do not apply"),
+    ("velocity_weights= and weights=", "--velocity-weights and --weights"),
     ("the threshold of 0 and kappa", "the threshold of 0 and kappa"),   # prose stays prose
 ])
 def test_errors_in_cli_terms(message, expected):

@@ -12,9 +12,12 @@ from vdad.cli import main
 from vdad.report import best_under, decreasing
 from vdad.reproduce import (
     EXPERIMENTS,
+    FAMILIES,
     RESULT_FIELDS,
+    SLOW,
     TRACE,
     check_result,
+    family,
     plan,
     reproduce,
     run_config,
@@ -86,6 +89,8 @@ def test_speed_study_covers_every_family_and_measures_error(quick):
         families = {r["family"] for r in mine}
         assert families >= {"adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb",
                             "view-oq", "lod-distance", "sleeping", "dca"}
+        slow = f"view-bvh sphere moved, velocity weights {SLOW:g}"
+        assert (slow in families) == (scene == "falling_character")
         dca = [r for r in mine if r["family"] == "dca"][0]
         assert float(dca["mean px (mean)"]) == 0 and float(dca["differing px (mean)"]) == 0
         assert any(float(r["mean px (mean)"]) > 0 for r in mine if not r["failure"])
@@ -131,6 +136,12 @@ def test_report_helpers():
 def test_plan_names_every_experiment_and_quick_is_smaller():
     full, fast = plan(False), plan(True)
     assert tuple(full) == EXPERIMENTS == tuple(fast)
+    for c in full["speed_vs_error"]:                # every run has a family of the legend
+        assert c["method"] == "dca" or family(c) in FAMILIES
+    slow = [c for c in full["speed_vs_error"] if "velocity_weights" in c["options"]]
+    assert slow and all(c["scene"] == "falling_character" and c["method"] == "view-bvh"
+                        and c["options"]["pixels"] == "moved"
+                        and c["options"]["velocity_weights"] == SLOW for c in slow)
     assert sum(map(len, fast.values())) < sum(map(len, full.values()))
     assert np.all([c["steps"] % c["every"] == 0 for cs in full.values() for c in cs])
 

@@ -85,9 +85,10 @@ def _scene_options(parser):
 
 # the method options that make_simulator gives Scene.simulator when set: each is the
 # keyword of the CLI option of the same name (--coverage-every: coverage_every)
-SIMULATOR_OPTIONS = ("threshold", "budget", "policy", "metric", "drop", "energy", "dwell", "kappa",
-                     "lookahead_every", "volume", "estimate", "pixels", "counting",
-                     "coverage_every", "distance", "sleep_speed", "sleep_time")
+SIMULATOR_OPTIONS = ("threshold", "budget", "weights", "velocity_weights", "policy", "metric",
+                     "drop", "energy", "dwell", "kappa", "lookahead_every", "volume", "estimate",
+                     "pixels", "counting", "coverage_every", "distance", "sleep_speed",
+                     "sleep_time")
 
 
 def _flag(name):
@@ -146,6 +147,14 @@ def _method_options(parser):
     adaptive.add_argument("--budget", type=_positive_int,
                           help="accelerate only this many joints (max-heap on the metric), "
                           "instead of a threshold")
+    adaptive.add_argument("--weights", type=_positive_float,
+                          help="weight of every dof in the acceleration metric (default: 1 on "
+                          "rotational dofs, 1/l^2 on translational ones, l the mean link "
+                          "length; docs/adaptive.md)")
+    adaptive.add_argument("--velocity-weights", type=_positive_float,
+                          help="the same for the velocity metric (default: --weights); "
+                          "smaller lets joints that move at a steady rate, such as a body "
+                          "rolling on the floor, be rigidified (docs/reproduction.md)")
     adaptive.add_argument("--policy", choices=POLICIES,
                           help="velocities of newly rigid joints: momentum-conserving "
                           "locking impulse, or zeroed as in the paper (default "
@@ -348,11 +357,13 @@ def make_simulator(scene, args):
 
 def describe_options(method, options):
     """The method's options of ``sim.options`` that the summary line shows: the
-    threshold or budget (not of a baseline) and the method's own, e.g.
+    threshold or budget (not of a baseline), the metric weights if given and the
+    method's own, e.g.
     ``"threshold 0.01, volume sphere, estimate min"``."""
     from .simulator import BASELINES, EXCLUSIVE, METHOD_OPTIONS
 
-    keys = (() if method in BASELINES else EXCLUSIVE) + METHOD_OPTIONS.get(method, ())
+    keys = ((() if method in BASELINES else EXCLUSIVE) + ("weights", "velocity_weights")
+            + METHOD_OPTIONS.get(method, ()))
     shown = [(k, options[k]) for k in keys if k in options]
     return ", ".join(f"{k.replace('_', ' ')} " + (f"{v:g}" if isinstance(v, float) else
                                                   str(v)) + (" m" if k == "distance" else "")

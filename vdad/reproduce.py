@@ -28,8 +28,14 @@ EXPERIMENTS = ("table1", "figure8", "figure9", "dogs", "speed_vs_error")
 # the 300-body pendulum of Figures 8-9 and the speed study: beads (radius half a link)
 # seen at 640 x 480, so that links cover pixels when all 300 are in view
 PENDULUM300 = {"n_bodies": 300, "radius": 0.05, "resolution": [640, 480]}
+# the velocity weight of the speed study's "slow" family, relative to the acceleration
+# weight (AdaptiveDynamics' velocity_weights): the falling character rolls on the floor
+# with joint rates that keep its velocity metric above any sub-pixel threshold
+# (docs/reproduction.md)
+SLOW = 1e-4
 FAMILIES = ("adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb", "view-oq",
-            "view-bvh sphere moved", "view-oq moved", "lod-distance", "sleeping")
+            "view-bvh sphere moved", f"view-bvh sphere moved, velocity weights {SLOW:g}",
+            "view-oq moved", "lod-distance", "sleeping")
 CURVES = ("view-bvh", "view-oq", "view-bvh moved", "view-oq moved")   # of Figures 8 and 9
 TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
 
@@ -78,7 +84,8 @@ def _view(method, threshold, **extra):
 
 def _family_configs(scene, args, steps, every, values):
     """One run per value of every method family of the speed study, and the DCA
-    (the moved-pixels rule at thresholds of its own: its weights are larger)."""
+    (the moved-pixels rule at thresholds of its own: its weights are larger; with
+    velocity weights :data:`SLOW` at those of ``values["slow"]``, where given)."""
     out = [_config(scene, args, "dca", {}, steps, every)]
     for t in values["adaptive"]:
         out.append(_config(scene, args, "adaptive", {"threshold": t}, steps, every))
@@ -91,6 +98,10 @@ def _family_configs(scene, args, steps, every, values):
     for m in ("view-bvh", "view-oq"):
         for t in values["moved"]:
             out.append(_config(scene, args, m, _view(m, t, pixels="moved"), steps, every))
+    for t in values.get("slow", ()):
+        out.append(_config(scene, args, "view-bvh",
+                           _view("view-bvh", t, pixels="moved", velocity_weights=SLOW), steps,
+                           every))
     for d in values["distance"]:
         out.append(_config(scene, args, "lod-distance", {"distance": d}, steps, every))
     for s in values["sleep"]:
@@ -133,7 +144,7 @@ def plan(quick=False) -> dict:
                    "distance": [3.5], "sleep": [0.5]})
                + _family_configs("falling_character", {}, 300, 25, {
                    "adaptive": [1e-6, 1e-3], "view": [3e-3], "moved": [3e-3],
-                   "distance": [4.0], "sleep": [0.2]}))
+                   "slow": [5e-3], "distance": [4.0], "sleep": [0.2]}))
     else:
         sve = (_family_configs("pendulum", PENDULUM300, p_steps, p_every, {
                    "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-5, 1e-3, 1e-1],
@@ -144,7 +155,8 @@ def plan(quick=False) -> dict:
                    "sleep": [0.05, 0.5, 2.0]})
                + _family_configs("falling_character", {}, 2500, 25, {
                    "adaptive": [1e-6, 1e-4, 1e-2], "view": [1e-3, 3e-3, 1e-2],
-                   "moved": [1e-3, 3e-3, 1e-2, 3e-2, 1e-1], "distance": [4.0, 5.0, 6.0, 8.0],
+                   "moved": [1e-3, 3e-3, 1e-2, 3e-2, 1e-1], "slow": [3e-3, 5e-3, 7e-3, 1e-2],
+                   "distance": [4.0, 5.0, 6.0, 8.0],
                    "sleep": [0.05, 0.2, 1.0]}))
     return {"table1": table1, "figure8": figure8, "figure9": figure9, "dogs": dogs,
             "speed_vs_error": sve}
@@ -158,10 +170,13 @@ def curve(config) -> str:
 
 def family(config) -> str:
     """The method family of a configuration in the speed study's legend."""
+    name = curve(config)
     if config["method"] == "view-bvh":
         volume = config["options"].get("volume", "sphere")
-        return curve({**config, "method": f"view-bvh {volume}"})
-    return curve(config)
+        name = curve({**config, "method": f"view-bvh {volume}"})
+    if "velocity_weights" in config["options"]:
+        name += f", velocity weights {config['options']['velocity_weights']:g}"
+    return name
 
 
 def parameter(config):
