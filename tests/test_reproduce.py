@@ -89,7 +89,7 @@ def test_speed_study_covers_every_family_and_measures_error(quick):
         families = {r["family"] for r in mine}
         assert families >= {"adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb",
                             "view-oq", "lod-distance", "sleeping", "dca"}
-        slow = f"view-bvh sphere moved, velocity weights {SLOW:g}"
+        slow = f"view-bvh sphere moved (velocity weights {SLOW:g})"
         assert (slow in families) == (scene == "falling_character")
         dca = [r for r in mine if r["family"] == "dca"][0]
         assert float(dca["mean px (mean)"]) == 0 and float(dca["differing px (mean)"]) == 0

@@ -46,6 +46,11 @@ def _save(plt, fig, title, path):
     return Path(path)
 
 
+def _legend_beside(ax):
+    """The legend to the right of ``ax``, outside it, where it hides no point."""
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+
+
 def _scene_label(rows, scene=None):
     """``"pendulum (300 bodies)"``: the scene of ``rows`` (of ``scene`` if given) and
     its size, the joints of its runs (one joint per body)."""
@@ -286,7 +291,7 @@ def write_speed_vs_error(rows, out):
                                                            *TRACE], frames)]
     for scene in _scenes(rows):
         mine = [r for r in rows if r["config"]["scene"] == scene]
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+        fig, axes = plt.subplots(1, 2, figsize=(13.5, 4.2))
         for ax, (measure, label) in zip(axes, MEASURES, strict=True):
             for f in FAMILIES:
                 runs = sorted((r for r in mine if family(r["config"]) == f
@@ -307,7 +312,7 @@ def write_speed_vs_error(rows, out):
             _readable(ax, ("symlog", errors), ("log",) if wide else None)
             ax.set_xlabel(label + ", mean over frames (0, then log)")
             ax.set_ylabel("speed-up over full DCA" + (" (log)" if wide else ""))
-        axes[1].legend(fontsize=7)
+        _legend_beside(axes[1])
         files += [_save(plt, fig, f"{_scene_label(mine)}: speed-up against measured visual "
                              "error (points: threshold, distance or sleep speed)",
                         Path(out) / f"speed_vs_error_{scene}.png"),
@@ -317,7 +322,7 @@ def write_speed_vs_error(rows, out):
 
 def _write_error_over_time(rows, out, scene, plt):
     """The error over time of each family's run of median error."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 2, figsize=(13.5, 4.2))
     for f in FAMILIES:
         mine = sorted((r for r in rows if family(r["config"]) == f), key=lambda r: _err(r))
         if not mine:
@@ -325,12 +330,12 @@ def _write_error_over_time(rows, out, scene, plt):
         r = mine[len(mine) // 2]
         for ax, (measure, label) in zip(axes, MEASURES, strict=True):
             ax.plot(r["trace"]["t"], [np.nan if v is None else v for v in r["trace"][measure]],
-                    label=f"{f} ({_num(parameter(r['config']))})")
+                    label=f"{f} at {_num(parameter(r['config']))}")
             ax.set_xlabel("simulated time (s)")
             ax.set_ylabel(label)
     for ax in axes:
         _readable(ax)
-    axes[1].legend(fontsize=7)
+    _legend_beside(axes[1])
     return _save(plt, fig, f"{_scene_label(rows)}: visual error over time (each family's "
                  "median run)",
                  Path(out) / f"error_over_time_{scene}.png")

@@ -34,7 +34,7 @@ PENDULUM300 = {"n_bodies": 300, "radius": 0.05, "resolution": [640, 480]}
 # (docs/reproduction.md)
 SLOW = 1e-4
 FAMILIES = ("adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb", "view-oq",
-            "view-bvh sphere moved", f"view-bvh sphere moved, velocity weights {SLOW:g}",
+            "view-bvh sphere moved", f"view-bvh sphere moved (velocity weights {SLOW:g})",
             "view-oq moved", "lod-distance", "sleeping")
 CURVES = ("view-bvh", "view-oq", "view-bvh moved", "view-oq moved")   # of Figures 8 and 9
 TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
@@ -175,7 +175,7 @@ def family(config) -> str:
         volume = config["options"].get("volume", "sphere")
         name = curve({**config, "method": f"view-bvh {volume}"})
     if "velocity_weights" in config["options"]:
-        name += f", velocity weights {config['options']['velocity_weights']:g}"
+        name += f" (velocity weights {config['options']['velocity_weights']:g})"
     return name
 
 
