@@ -188,7 +188,6 @@ SYMPLECTIC_GROWTH = 10.0
 ANDERSON_MEMORY = 6
 
 
-@inlined
 def anderson_scratch(nv):
     """Scratch of :func:`anderson_update` for ``nv`` dofs: ``(rows (3 m + 2, nv),
     R (m, m + 1))``, ``m`` = :data:`ANDERSON_MEMORY`."""
@@ -343,21 +342,21 @@ def dca_steps(n, dt, step0, scheme, constants, tables, q, qd, q_new, qd_new):
     ``2^SYMPLECTIC_HALVINGS`` substeps (status 3, ``q``, ``qd`` left at that step's
     start), leaving that step's state in ``q_new``, ``qd_new``. The arguments that
     stay the same from call to call come in two packs (:class:`~vdad._pack.Pack`), so
-    that a call from Python converts ten arguments instead of some 130 (``vdad._pack``):
-    ``constants`` = (js, tree, bodies, inert, rotational, kin, work, halvings) and
-    ``tables`` = ``F``. Returns ``(steps done, status)``."""
-    js, tree, bodies, inert, rotational, kin, work, halvings = constants.data
+    that a call from Python converts ten arguments instead of some 140 (``vdad._pack``):
+    ``constants`` = (js, tree, bodies, inert, rotational, kin, work, halvings,
+    :func:`step_scratch`) and ``tables`` = ``F``. Returns ``(steps done, status)``."""
+    js, tree, bodies, inert, rotational, kin, work, halvings, held = constants.data
     F = tables.data
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
-    nq, nv, nb = q.shape[0], qd.shape[0], bodies[0].shape[0]
-    kq = np.empty((4, nq))
-    kv = np.empty((4, nv))
-    qs, vs = np.empty(nq), np.empty(nv)
-    states, f_ext, tau = np.empty((2, nb, 3)), np.empty((nb, 6)), np.empty(nv)
-    p, previous, scratch = np.empty(nv), qd.copy(), np.zeros((4, nv))
-    rows, R = anderson_scratch(nv)
-    no_wrench, start = np.empty((0, 6)), np.empty((3, max(nq, nv)))
+    nq, nv = q.shape[0], qd.shape[0]
+    kq, kv, qs, vs, states, f_ext, tau, p, previous, scratch, rows, R, no_wrench, start = held
     if scheme == SYMPLECTIC:                                       # p = M(q) qd
+        for i in range(nv):                # the solve's memory starts from this call's qd
+            previous[i] = qd[i]
+            for r in range(scratch.shape[0]):
+                scratch[r, i] = 0.0
+        rows[:] = 0.0
+        R[:] = 0.0
         kinematics_pass(js, q, qd, True, *kin)
         inverse_dynamics_pass(js, bodies, kin, no_wrench, qd, MASS, work[13], work[14],
                               work[11][7], p)
@@ -435,6 +434,19 @@ def dca_steps(n, dt, step0, scheme, constants, tables, q, qd, q_new, qd_new):
         for i in range(nv):
             qd[i] = work[7][i]
     return n, 0
+
+
+def step_scratch(nq, nv, nb):
+    """The scratch arrays of :func:`dca_steps`, kept in its constants pack so that a
+    call allocates none: RK4's stages ``kq`` (4, nq), ``kv`` (4, nv), ``qs``, ``vs``;
+    the forces' ``states`` (2, nb, 3), ``f_ext`` (nb, 6), ``tau``; the symplectic
+    step's momentum ``p``, previous velocities, scratch (4, nv), Anderson memory
+    (:func:`anderson_scratch`), an empty wrench array and the step's start (3,
+    max(nq, nv))."""
+    return (np.empty((4, nq)), np.empty((4, nv)), np.empty(nq), np.empty(nv),
+            np.empty((2, nb, 3)), np.empty((nb, 6)), np.empty(nv), np.empty(nv),
+            np.empty(nv), np.zeros((4, nv)), *anderson_scratch(nv), np.empty((0, 6)),
+            np.empty((3, max(nq, nv))))
 
 
 def evaluation_times(step0, n, dt, use_rk4):

@@ -37,6 +37,7 @@ from .integrators import (
     evaluation_times,
     get_integrator,
     normalize_configuration,
+    step_scratch,
 )
 from .kinematics import gimbal_lock, plan, world_poses
 from .model import body_indices, check_configuration, check_model
@@ -467,7 +468,8 @@ class Simulator:
             constants = pack((plan(self.model).arrays, self.data.layout,
                               dca.body_arrays(self.model), dca.inert_arrays(self.model),
                               self._rotational, self.data.kin.arrays, self.data.arrays,
-                              self.halvings))
+                              self.halvings,
+                              step_scratch(self.model.nq, self.model.nv, self.model.nb)))
         while n > 0:
             m = min(n, self.CHUNK)
             try:
