@@ -59,12 +59,12 @@ def setups():
     return out
 
 
-#: the timing loops, compiled without numba's reference counting, which would add
-#: an atomic increment and decrement per array argument to every call of the
-#: coverage (about 0.4 µs per evaluation of the 20-body tree: the loop's cost, not
-#: the coverage's; the adaptive steps, ``vdad.region.region_steps``, pay it once
-#: per frame); not cached, as ``vdad._linalg.pass_kernel`` is, since a cached loop
-#: would keep the vdad kernels it links after they change
+#: the timing loops compiled as the adaptive steps that call the coverage
+#: (``vdad.region.region_steps``, a ``vdad._linalg.pass_kernel``): without numba's
+#: reference counting, which would add an atomic increment and decrement per array
+#: argument to every call (about 0.4 µs per evaluation of the 20-body tree); not
+#: cached, as ``pass_kernel`` is, since a cached loop would keep the vdad kernels
+#: it links after they change
 in_steps = njit(error_model="numpy", _nrt=False)
 
 

@@ -7,7 +7,7 @@ third of the DCA itself; ``docs/benchmarks.md``). A :class:`Pack` holds a tuple
 of arrays, nested as a pass takes them, for compiled code: it is built once,
 typed and unboxed as one pointer, and a kernel that takes it hands the tuple on
 to the pass (``vdad.dca.dca_call``, ``vdad.integrators.dca_steps``,
-``vdad.region.region_steps``). The arrays are the same objects: what the pass
+``vdad.region.region_call``). The arrays are the same objects: what the pass
 writes into them is seen from Python, and the pack keeps them alive. An array
 replaced on the Python side is not seen: build a new pack (:func:`pack_once`
 builds one when its key changes). numba cannot copy a pack: an object that

@@ -77,8 +77,8 @@ from .region import (
     lock_pruned,
     lookahead_due,
     rebuild,
+    region_call,
     region_poses,
-    region_steps,
     resume_cap,
     rk4_active,
     update_region,
@@ -366,7 +366,7 @@ class AdaptiveDynamics:
         self._cappable = energy == "cap" and not np.any(plan(model).stage_stiffness)
         self._left = (np.full(model.nq, np.nan), np.full(model.nv, np.nan))
         # run(): the arguments of region_steps that are this object's same arrays at
-        # every call, packed at the first: the groups' arrays and force
+        # every call, packed at the first (region_call): the groups' arrays and force
         # sums; the force work; the state before a step and the counters; no forces
         g = self.groups
         self._loop_args = (
@@ -812,8 +812,8 @@ class AdaptiveDynamics:
         self._packs = (constants, forces, volumes)
         cap_off = tables is not None or self.groups.any_force or not self._cappable
         t0 = time.perf_counter()
-        with compiling(region_steps):
-            done, status = region_steps(
+        with compiling(region_call):
+            done, status = region_call(
                 constants, forces[1], volumes[1], coverage[1], m, self.step_count, time0, e0,
                 self._refresh_on_change, options, tables is not None, cap_off, rotational, q,
                 qd)

@@ -1394,50 +1394,41 @@ def forces_now(use, F, e, t, js, q, qd, fkin, states, f_ext, tau, held, active, 
     return carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order)
 
 
-@kernel
-def region_steps(constants, tables, volumes, frames, n, step0, time0, e0, stop_on_change,
-                 options, use_forces, cap_off, rotational, q, qd):
+@pass_kernel
+def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies, groups,
+                 top, up, roots, sums, use_forces, F, force_work, coverage, energy, cap_off, left,
+                 rotational, q, qd, kin, work, region, stack, last, counters):
     """Up to ``n`` adaptive steps by semi-implicit Euler, the first numbered
     ``step0 + 1`` by adaptive dynamics and at ``t = time0 dt`` (the simulator's
     step count), each as ``AdaptiveDynamics.step`` takes it from Python:
-    forces (the built-in elements of the tables at evaluation ``e0 + s`` for the
-    step ``s`` of the call, if ``use_forces``), the first evaluation, under
+    forces (the built-in elements of ``F`` at evaluation ``e0 + s`` for the step
+    ``s`` of the call, if ``use_forces``), the first evaluation, under
     ``drop="lock"`` the immediate locking of what it pruned and a second
     evaluation, the integration of the active joints, the region update, the
     energy cap; then the simulator's checks on the active joints. ``options`` =
     (predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa,
-    threshold), ``lookahead`` 0 (none) or the steps between look-aheads.
-
-    The arguments that stay the same from call to call come in three packs
-    (:class:`~vdad._pack.Pack`), so that a call from Python converts a dozen
-    arrays instead of some 270 (``vdad._pack``): ``constants`` = (nb, js, tree,
-    bodies, groups, top, up, roots, sums, force work, energy, left, kin, work,
-    region, stack, last, counters), with ``sums`` the force sums held by the
-    groups and ``carry_forces``' scratch, ``force work`` the kinematics,
-    states, f_ext, tau of every body, and ``energy``, ``left`` the energy cap's
-    (:func:`resume_cap` before the steps unless ``cap_off``, :func:`cap_energy`
-    after each); ``tables`` = (F, the joints whose kinematics the forces read,
-    ``AdaptiveDynamics.force_joints``); ``volumes`` = the constants of
-    ``vdad.visibility.BoundingVolumes.loop_coverage``, whose ``frames`` come
-    apart: ``N_M`` of every node by :func:`vdad.visibility.region_bvh_pass`
-    before the steps ``frames[0]`` (ascending) of the call, each under its
-    camera (none if empty), from the active joints' kinematics that the step's
-    first evaluation then takes. Writes each step's :data:`STEP_COUNTERS` into
-    ``counters`` (n, 9) and keeps the state before the last step in ``last``
-    (q, qd). Stops after a step that changed the region if ``stop_on_change``
-    (the coverage is stale then). Returns ``(steps done, status)``: 0, or 1 if a
-    step's ``qdd`` was not finite (its state not advanced), 2 if its new state
-    failed the checks (``last`` holds the one before)."""
-    (nb, js, tree, bodies, groups, top, up, roots, sums, force_work, energy, left, kin, work,
-     region, stack, last, counters) = constants.data
-    F, fjs = tables.data
+    threshold), ``lookahead`` 0 (none) or the steps between look-aheads;
+    ``sums`` = the force sums held by the groups and ``carry_forces``' scratch;
+    ``force_work`` = (the joints whose kinematics the forces read,
+    ``AdaptiveDynamics.force_joints``; kinematics, states, f_ext, tau of every
+    body); ``energy``, ``cap_off``, ``left``: the energy cap's (:func:`resume_cap`
+    before the steps, :func:`cap_energy` after each); ``coverage`` = (constants, frames) of
+    ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
+    :func:`vdad.visibility.region_bvh_pass` before the steps ``frames[0]``
+    (ascending) of the call, each under its camera (none if empty), from the
+    active joints' kinematics that the step's first evaluation then takes. Writes
+    each step's :data:`STEP_COUNTERS` into ``counters`` (n, 9) and keeps the state
+    before the last step in ``last`` (q, qd). Stops after a step that changed the
+    region if ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
+    status)``: 0, or 1 if a step's ``qdd`` was not finite (its state not
+    advanced), 2 if its new state failed the checks (``last`` holds the one before)."""
     predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa, threshold = \
         options
     held, pending, mark, order, is_B = sums
-    fkin, states, f_ext, tau = force_work
+    fjs, fkin, states, f_ext, tau = force_work
     active, counts, qdd = region[0], region[10], work[7]
-    codes, first, poses, boxes, cache, world, N1, moved, scratch = volumes.data
-    due, views, Rcs, pcs = frames
+    (codes, first, poses, volumes, cache, world, N1, moved, scratch), (due, views, Rcs, pcs) = \
+        coverage
     # placed: kin holds the active joints' kinematics at (q, qd)
     placed = resume_cap(cap_off, energy, left, nb, js, bodies, groups, top, region, q, qd, kin)
     f, done, status = 0, n, 0
@@ -1452,7 +1443,7 @@ def region_steps(constants, tables, volumes, frames, n, step0, time0, e0, stop_o
             region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
                             tree[1], (tree[13], tree[14]), first,
                             (region[4], counts[N_VISIT], active, groups[4], top, groups[5],
-                             groups[6]), region[3], kin[5], kin[6], poses, boxes, cache, world,
+                             groups[6]), region[3], kin[5], kin[6], poses, volumes, cache, world,
                             N1, region[17], moved, scratch)
             f += 1
         copy_state(q, qd, last)
@@ -1509,3 +1500,22 @@ def region_steps(constants, tables, volumes, frames, n, step0, time0, e0, stop_o
             break
     hold_cap(energy, left, q, qd)
     return done, status
+
+
+@kernel
+def region_call(constants, tables, volumes, frames, n, step0, time0, e0, stop_on_change,
+                options, use_forces, cap_off, rotational, q, qd):
+    """:func:`region_steps` with the arguments that stay the same from call to call
+    in three packs (:class:`~vdad._pack.Pack`), so that a call from Python converts
+    a dozen arrays instead of some 270 (``vdad._pack``): ``constants`` = (nb, js,
+    tree, bodies, groups, top, up, roots, sums, force work, energy, left, kin,
+    work, region, stack, last, counters), ``force work`` without its joint set;
+    ``tables`` = (F, the joint set of the forces' kinematics); ``volumes`` = the
+    constants of ``coverage``, whose ``frames`` come apart."""
+    (nb, js, tree, bodies, groups, top, up, roots, sums, force_work, energy, left, kin, work,
+     region, stack, last, counters) = constants.data
+    F, fjs = tables.data
+    return region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies,
+                        groups, top, up, roots, sums, use_forces, F, (fjs,) + force_work,
+                        (volumes.data, frames), energy, cap_off, left, rotational, q, qd, kin,
+                        work, region, stack, last, counters)
