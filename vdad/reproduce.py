@@ -170,10 +170,10 @@ def curve(config) -> str:
 
 def family(config) -> str:
     """The method family of a configuration in the speed study's legend."""
-    name = curve(config)
-    if config["method"] == "view-bvh":
-        volume = config["options"].get("volume", "sphere")
-        name = curve({**config, "method": f"view-bvh {volume}"})
+    method = config["method"]
+    if method == "view-bvh":
+        method += " " + config["options"].get("volume", "sphere")
+    name = curve({**config, "method": method})
     if "velocity_weights" in config["options"]:
         name += f" (velocity weights {config['options']['velocity_weights']:g})"
     return name
