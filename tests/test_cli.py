@@ -62,6 +62,10 @@ def test_help(argv, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["run", "pendulum", "--steps", "0"], "--steps: must be a positive integer"),
     (["run", "pendulum", "--dt", "nan"], "--dt: must be a positive number"),
+    (["run", "pendulum", "--method", "adaptive", "--weights", "-1"],
+     "--weights: must be a positive number, got -1"),
+    (["run", "pendulum", "--method", "adaptive", "--velocity-weights", "nan"],
+     "--velocity-weights: must be a positive number, got nan"),
     (["run", "box"], "invalid choice: 'box'"),
     (["run", "nowhere/robot.xml"], "MuJoCo model file not found: nowhere/robot.xml"),
 ])
