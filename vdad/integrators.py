@@ -351,10 +351,8 @@ def dca_steps(n, dt, step0, scheme, constants, tables, q, qd, q_new, qd_new):
     nq, nv = q.shape[0], qd.shape[0]
     kq, kv, qs, vs, states, f_ext, tau, p, previous, scratch, rows, R, no_wrench, start = held
     if scheme == SYMPLECTIC:                                       # p = M(q) qd
-        for i in range(nv):                # the solve's memory starts from this call's qd
-            previous[i] = qd[i]
-            for r in range(scratch.shape[0]):
-                scratch[r, i] = 0.0
+        previous[:] = qd                   # the solve's memory starts from this call's qd
+        scratch[:] = 0.0
         rows[:] = 0.0
         R[:] = 0.0
         kinematics_pass(js, q, qd, True, *kin)
