@@ -934,14 +934,14 @@ def test_forces_place_only_the_bodies_they_read():
 
     scene = hanging_dogs(n_dogs=3, columns=3)
     sim = scene.simulator(method="adaptive", threshold=1e-2)
-    order = sim.adaptive.force_joints(sim.force_tables().arrays(np.zeros(1)))[0]
+    order = sim.adaptive.force_joints(sim.force_tables().arrays(0, 1, sim.dt, False))[0]
     names = scene.model.body_names
     assert sorted(names[b] for b in order) == [f"dog{d:03d}/torso" for d in range(3)]
     model = pendulum(6).model
     tip = Springs(model, [model.body_names[-1]], np.zeros((1, 3)), np.ones((1, 3)), 10.0, 0.1)
     pulses = RandomTorques(model, [model.body_names[2]], 1.0, 1.0, 0.1)
     for element, placed in ((tip, list(range(6))), (pulses, [])):
-        F = ForceTables(Forces(model, [element])).arrays(np.zeros(1))
+        F = ForceTables(Forces(model, [element])).arrays(0, 1, 1e-3, False)
         order = AdaptiveDynamics(model, 1e-3, threshold=1e-5).force_joints(F)[0].tolist()
         assert sorted(order) == placed
         assert all(model.parent[b] < 0 or model.parent[b] in order[:k]     # parents first

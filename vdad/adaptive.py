@@ -375,7 +375,7 @@ class AdaptiveDynamics:
             (self.kin.arrays, self.data.arrays, r.arrays, self._stack,
              (np.empty(model.nq), np.empty(model.nv)),
              np.zeros((512, len(STEP_COUNTERS)), np.int64)),
-            ForceTables(Forces(model, [])).arrays(np.zeros(1)))
+            ForceTables(Forces(model, [])).arrays(0, 1, 1.0, False))
         # run()'s packs: its constants; (key, pack) pairs of the forces and volumes
         self._packs = (None, None, None)
         self.step_count = 0

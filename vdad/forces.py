@@ -770,13 +770,15 @@ class ForceTables:
             return np.zeros((0, *tail), dtype)
         return np.ascontiguousarray(np.concatenate(arrays), dtype)
 
-    def arrays(self, times):
-        """The tuple :func:`apply_forces` reads, for evaluations at ``times`` (E,):
-        anchors and their velocities per evaluation (one row if none moves) and
-        every random-torque pulse acting between the first and the last time.
-        Without moving anchors and pulses, the same tuple at every call."""
+    def arrays(self, step0, n, dt, use_rk4):
+        """The tuple :func:`apply_forces` reads, for the evaluations of ``n`` steps
+        of ``dt`` from step ``step0`` (:func:`evaluation_times`): anchors and their
+        velocities per evaluation (one row if none moves) and every random-torque
+        pulse acting between the first and the last time. Without moving anchors
+        and pulses, the same tuple at every call."""
         if self.fixed is not None:
             return self.fixed
+        times = evaluation_times(step0, n, dt, use_rk4)
         cat = self._cat
         moving = [e for e in self.springs if e.moving]
         rows = 1 if not moving else len(times)
@@ -801,6 +803,16 @@ class ForceTables:
         if not moving and not self.pulses:
             self.fixed = out
         return out
+
+
+def evaluation_times(step0, n, dt, use_rk4):
+    """The times (n E,) at which the compiled steps (:func:`vdad.integrators.dca_steps`)
+    evaluate forces on ``n`` steps from ``step0``: the step's start, and for RK4
+    also its middle (twice) and end."""
+    t = (step0 + np.arange(n)) * dt
+    if not use_rk4:
+        return t
+    return (t[:, None] + np.array([0.0, dt / 2, dt / 2, dt])).ravel()
 
 
 def state_bodies(F):

@@ -446,11 +446,3 @@ def step_scratch(nq, nv, nb):
             np.empty(nv), np.zeros((4, nv)), *anderson_scratch(nv), np.empty((0, 6)),
             np.empty((3, max(nq, nv))))
 
-
-def evaluation_times(step0, n, dt, use_rk4):
-    """The times (n E,) at which :func:`dca_steps` evaluates forces on ``n`` steps
-    from ``step0``: the step's start, and for RK4 also its middle (twice) and end."""
-    t = (step0 + np.arange(n)) * dt
-    if not use_rk4:
-        return t
-    return (t[:, None] + np.array([0.0, dt / 2, dt / 2, dt])).ravel()

@@ -34,7 +34,6 @@ from .integrators import (
     SYMPLECTIC,
     SYMPLECTIC_HALVINGS,
     dca_steps,
-    evaluation_times,
     get_integrator,
     normalize_configuration,
     step_scratch,
@@ -429,16 +428,9 @@ class Simulator:
         if tables is None:
             return None
         try:
-            return self._force_arrays(tables, m)
+            return tables.arrays(self.step_count, m, self.dt, self._rk4)
         except InputError:
             return None
-
-    def _force_arrays(self, tables, m):
-        """The :meth:`~vdad.forces.ForceTables.arrays` of ``tables`` for the next ``m``
-        steps (the same tuple at every call where nothing in them depends on time)."""
-        if tables.fixed is not None:
-            return tables.fixed
-        return tables.arrays(evaluation_times(self.step_count, m, self.dt, self._rk4))
 
     CHUNK = 512          # compiled steps per call: bounds the time-dependent force tables
     #: adaptive steps by semi-implicit Euler run in compiled code where the forces
@@ -473,7 +465,7 @@ class Simulator:
         while n > 0:
             m = min(n, self.CHUNK)
             try:
-                F = self._force_arrays(self.force_tables(), m)
+                F = self.force_tables().arrays(self.step_count, m, self.dt, self._rk4)
             except InputError:              # a moving anchor failed: find its step in Python
                 self.q, self.qd = q, qd
                 return self._python_steps(n)
