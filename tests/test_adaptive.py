@@ -39,7 +39,7 @@ from vdad.errors import InputError
 from vdad.integrators import semi_implicit_euler
 from vdad.quantities import kinetic_energy, spatial_momentum, total_energy
 from vdad.reference import bias_forces, crba
-from vdad.scenes import pendulum
+from vdad.scenes import hanging_dogs, pendulum
 
 EPS = np.finfo(float).eps
 
@@ -439,6 +439,35 @@ def test_predicted_and_direct_metrics_decide_alike(option):
         assert (a.active_joints, a.accelerated) == (b.active_joints, b.accelerated)
     assert np.abs(runs[0].q - runs[1].q).max() <= 1e-9
     assert np.abs(runs[0].q - scene.q0).max() > 0.01                 # it moved
+
+
+def test_large_forests_are_evaluated_on_threads():
+    """A forest of at least dca.PARALLEL_BODIES bodies runs the region's passes of
+    each root's subtree on numba's threads (``region.region_forest``): with every
+    joint active, the DCA's accelerations and the metric (T16)-(T18) of the direct
+    sum (T14); in a hybrid state, the locked-joint solution; in a run of the 100
+    hanging dogs with pruning, the decisions of the direct metric, which sums
+    (T14) serially from the computed ``qdd``."""
+    model = random_tree(9, n=vdad.dca.PARALLEL_BODIES + 40, roots=24, composite=True)
+    q, qd, tau, f_ext = random_state(model, 9)
+    ad = AdaptiveDynamics(model, 1e-3, threshold=0.0, metric="coefficients")
+    assert len(ad.tree.segments) - 1 == 24 and model.nb >= vdad.dca.PARALLEL_BODIES
+    qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
+    np.testing.assert_allclose(evaluate(ad, q, qd, tau, f_ext), qdd[ad.active_dofs()],
+                               rtol=0, atol=1e-9 * np.abs(qdd).max())
+    assert _check_metric(ad, model, qdd, range(model.nb, ad.tree.n_nodes)) > model.nb // 2
+    ad = AdaptiveDynamics(model, 1e-3, threshold=0.0)
+    rigidify(ad, q, qd, random_rigid_set(ad.tree, np.random.default_rng(9), 0.3))
+    expected, cond = locked_solution(model, q, qd, tau, f_ext, ad.active_dofs())
+    err = np.abs(evaluate(ad, q, qd, tau, f_ext) - expected).max() / np.abs(expected).max()
+    assert err <= 100 * cond * EPS, (err, cond)
+    scene = hanging_dogs()
+    runs = [scene.simulator(method="adaptive", metric=m, threshold=1e-3).step(30)
+            for m in ("coefficients", "direct")]
+    for a, b in zip(runs[0].history, runs[1].history, strict=True):
+        assert (a.active_joints, a.accelerated) == (b.active_joints, b.accelerated)
+    assert 100 < runs[0].history[-1].active_joints < 1600        # some dogs' joints locked
+    assert np.abs(runs[0].q - runs[1].q).max() <= 1e-9
 
 
 # --- 4. rigidification policies ----------------------------------------------------------
@@ -930,7 +959,6 @@ def test_forces_place_only_the_bodies_they_read():
     ancestors, parents first (AdaptiveDynamics.force_joints): the 100 dogs' torsos,
     a spring at a pendulum's tip the whole chain; pulses read no body state."""
     from vdad.forces import Forces, ForceTables, RandomTorques, Springs
-    from vdad.scenes import hanging_dogs
 
     scene = hanging_dogs(n_dogs=3, columns=3)
     sim = scene.simulator(method="adaptive", threshold=1e-2)

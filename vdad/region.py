@@ -40,6 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import prange
 
 from ._linalg import (
     cholesky,
@@ -53,6 +54,7 @@ from ._linalg import (
     mmt6_add,
     motion_to_child,
     mv6,
+    parallel_kernel,
     pass_kernel,
     port_transform,
     relative_pose,
@@ -63,6 +65,7 @@ from .dca import (
     ONE_STEP,
     assemble_node,
     copy_block,
+    in_parallel,
     leaf_blocks,
     pair_offset,
     rhs_passes,
@@ -505,14 +508,13 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
     (:func:`refine_region`, (R6) of ``docs/accuracy.md``) before the metric is
     summed from them (the caller takes ``predictive`` off there). Returns whether
     ``qdd`` is finite."""
-    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, tau, X, GY, tmp, PF = work[:13]
-    G = work[16]
-    (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
-     la, N_M, wA, wV, h, heap, popped, H, M, mt, front, dofs) = region
+    qdd, tau, X, GY, tmp = work[7], work[8], work[9], work[10], work[11]
+    active, desc, visit, joints, counts, la, popped, H, M, mt = (
+        region[0], region[2], region[4], region[6], region[10], region[16], region[22],
+        region[23], region[24], region[25])
     stage0, n_stages, v_start, nv_joint = js[4], js[5], js[6], js[7]
     stage_kind, stage_q, stage_v = bodies[5], bodies[6], bodies[7]
-    stage_stiffness, q_spring, damping, armature, gravity = bodies[8], bodies[9], bodies[10], \
-        bodies[11], bodies[4]
+    stage_stiffness, q_spring, damping = bodies[8], bodies[9], bodies[10]
     joint = tree[2]
     if not placed:
         active_kinematics(js, region, q, qd, not impulse, kin)
@@ -528,47 +530,20 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
         else:
             for s in range(stage0[j], stage0[j] + n_stages[j]):
                 spring_force(s, stage_kind, stage_q, stage_v, stage_stiffness, q_spring, q, tau)
-    n_visit = counts[N_VISIT]
-    for e in range(n_visit):                            # bottom-up: front leaves, (T6)-(T12)
-        n = visit[e]
-        if n >= nb and active[n]:
-            assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta,
-                          gamma, G, GY, tmp)
-            if first and predictive and not impulse:
-                metric_node(n - nb, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta,
-                            gamma, tmp[5], G, GY, H, M, mt)
-        else:
-            front_leaf(n, tree, groups, gravity, kin, top, impulse, h, Phi, b, X, GY, tmp)
     if first and locking and not impulse:              # (T15) of the state, for descend
         velocity_metric(nb, js, tree, qd, region)
-    solved = 0
-    e = n_visit - 1
-    dt2 = dt * dt
-    while e >= 0:                                       # top-down (T10), (T13), pruned
-        n = visit[e]
-        if not (n >= nb and active[n]):
-            e -= 1
-            continue
-        go = impulse or desc[n]
-        if first and not impulse:
-            go = True
-            if predictive:
-                A[n] = metric_value(n, tree, f_J, Psi, p, eta)
-                go = budget > 0 or descend(n, locking, step, dwell, dt, keep, region)
-            desc[n] = go
-        if go:
-            solve_node(n - nb, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta, gamma,
-                       f_J, qdd, tmp)
-            solved += 1
-            e -= 1
-            continue
-        lo = e - size[e] + 1                            # the subtree coasts: qdd = 0
-        for x in range(lo, e):
-            m = visit[x]
-            if m >= nb and active[m] and first:
-                desc[m] = False
-                A[m] = np.nan
-        e = lo - 1
+    n_visit = counts[N_VISIT]
+    if in_parallel(nb, tree[14]):
+        # plain types: flags that callers give as constants would compile the
+        # parallel kernel once per call site
+        solved = region_forest(bool(first), bool(predictive), np.int64(budget), bool(impulse),
+                               bool(locking), np.int64(step), np.int64(dwell), np.float64(dt),
+                               np.float64(keep), nb, js, tree, bodies, groups, top, kin, tau,
+                               work, region)
+    else:
+        solved = region_passes(0, n_visit, first, predictive, budget, impulse, locking, step,
+                               dwell, dt, keep, nb, js, tree, bodies, groups, top, kin, tau,
+                               work, region, X, GY, tmp, H, M, mt)
     if bodies[12] != 0:                                 # (R6): leaves raised
         refine_region(nb, js, tree, bodies, groups, kin, work, region, impulse)
         for e in range(n_visit):                        # the pruned joints coast again
@@ -578,6 +553,7 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
                 for k in range(v_start[j], v_start[j] + nv_joint[j]):
                     qdd[k] = 0.0
     if first and not impulse:
+        dt2 = dt * dt
         counts[SOLVED] = solved
         counts[LOOKAHEAD] = 0
         if not predictive:
@@ -614,6 +590,107 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
             if impulse:
                 qd[k] = qdd[k]
     return ok
+
+
+@inlined
+def region_passes(lo, hi, first, predictive, budget, impulse, locking, step, dwell, dt, keep, nb,
+                  js, tree, bodies, groups, top, kin, tau, work, region, X, GY, tmp, H, M, mt):
+    """:func:`evaluate`'s steps 2-3 over the entries ``visit[lo:hi]``, whole
+    subtrees of the active region: the front leaves and the bottom-up pass (T6)-(T12)
+    with, on a step's first evaluation, the metric coefficients (T16)-(T18); then
+    the top-down pass (T10), (T13), pruned. ``X``, ``GY``, ``tmp``, ``H``, ``M``,
+    ``mt``: scratch. Returns the nodes solved."""
+    Phi, b, Y, WtWm, beta, gamma, f_J, qdd, _, _, _, _, PF = work[:13]
+    G = work[16]
+    (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
+     la, N_M, wA, wV, h) = region[:21]
+    armature, gravity = bodies[11], bodies[4]
+    for e in range(lo, hi):                             # bottom-up: front leaves, (T6)-(T12)
+        n = visit[e]
+        if n >= nb and active[n]:
+            assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta,
+                          gamma, G, GY, tmp)
+            if first and predictive and not impulse:
+                metric_node(n - nb, nb, tree, js, kin, active, wA, Psi, p, eta, Y, beta,
+                            gamma, tmp[5], G, GY, H, M, mt)
+        else:
+            front_leaf(n, tree, groups, gravity, kin, top, impulse, h, Phi, b, X, GY, tmp)
+    solved = 0
+    e = hi - 1
+    while e >= lo:                                      # top-down (T10), (T13), pruned
+        n = visit[e]
+        if not (n >= nb and active[n]):
+            e -= 1
+            continue
+        go = impulse or desc[n]
+        if first and not impulse:
+            go = True
+            if predictive:
+                A[n] = metric_value(n, tree, f_J, Psi, p, eta)
+                go = budget > 0 or descend(n, locking, step, dwell, dt, keep, region)
+            desc[n] = go
+        if go:
+            solve_node(n - nb, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta, gamma,
+                       f_J, qdd, tmp)
+            solved += 1
+            e -= 1
+            continue
+        lo_sub = e - size[e] + 1                        # the subtree coasts: qdd = 0
+        for x in range(lo_sub, e):
+            m = visit[x]
+            if m >= nb and active[m] and first:
+                desc[m] = False
+                A[m] = np.nan
+        e = lo_sub - 1
+    return solved
+
+
+#: :func:`region_forest` splits a forest's subtrees into this many chunks, each with
+#: its scratch, that numba's threads share (a fixed number: a kernel that asks
+#: numba for its thread count cannot be cached)
+FOREST_CHUNKS = 16
+
+
+@parallel_kernel
+def region_forest(first, predictive, budget, impulse, locking, step, dwell, dt, keep, nb, js,
+                  tree, bodies, groups, top, kin, tau, work, region):
+    """:func:`region_passes` of a forest's root subtrees in parallel (numba threads,
+    as :func:`vdad.dca.forest_passes`): the visit list holds each root's subtree in
+    turn, and each of :data:`FOREST_CHUNKS` chunks takes every ``T``-th of them with
+    its own scratch. Returns the nodes solved."""
+    visit_size, n_visit = region[5], region[10][N_VISIT]
+    n_roots, e = 0, n_visit - 1
+    while e >= 0:
+        n_roots += 1
+        e -= visit_size[e]
+    hi = np.empty(n_roots + 1, np.int64)                # subtree k: visit[hi[k+1]:hi[k]]
+    hi[0], e = n_visit, n_visit - 1
+    for k in range(n_roots):
+        e -= visit_size[e]
+        hi[k + 1] = e + 1
+    T = min(FOREST_CHUNKS, n_roots)
+    solved = np.zeros(T, np.int64)                      # per chunk: no reduction variable
+    for t in prange(T):
+        X, GY, tmp = np.empty_like(work[9]), np.empty_like(work[10]), np.empty_like(work[11])
+        H, M, mt = np.empty_like(region[23]), np.empty_like(region[24]), np.empty_like(region[25])
+        for k in range(t, n_roots, T):
+            solved[t] += subtree_passes(hi[k + 1], hi[k], first, predictive, budget, impulse,
+                                        locking, step, dwell, dt, keep, nb, js, tree, bodies,
+                                        groups, top, kin, tau, work, region, X, GY, tmp, H, M,
+                                        mt)
+    return solved.sum()
+
+
+@pass_kernel
+def subtree_passes(lo, hi, first, predictive, budget, impulse, locking, step, dwell, dt, keep,
+                   nb, js, tree, bodies, groups, top, kin, tau, work, region, X, GY, tmp, H, M,
+                   mt):
+    """:func:`region_passes` compiled on its own, as a call from the threads of
+    :func:`region_forest` (as :func:`vdad.dca.subtree_passes` is): inlined into the
+    parallel loop, numba's parallel passes took 15 minutes more to compile it."""
+    return region_passes(lo, hi, first, predictive, budget, impulse, locking, step, dwell, dt,
+                         keep, nb, js, tree, bodies, groups, top, kin, tau, work, region, X, GY,
+                         tmp, H, M, mt)
 
 
 @inlined
