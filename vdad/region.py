@@ -534,12 +534,8 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
         velocity_metric(nb, js, tree, qd, region)
     n_visit = counts[N_VISIT]
     if in_parallel(nb, tree[14]):
-        # plain types: flags that callers give as constants would compile the
-        # parallel kernel once per call site
-        solved = region_forest(bool(first), bool(predictive), np.int64(budget), bool(impulse),
-                               bool(locking), np.int64(step), np.int64(dwell), np.float64(dt),
-                               np.float64(keep), nb, js, tree, bodies, groups, top, kin, tau,
-                               work, region)
+        solved = region_forest(first, predictive, budget, impulse, locking, step, dwell, dt,
+                               keep, nb, js, tree, bodies, groups, top, kin, tau, work, region)
     else:
         solved = region_passes(0, n_visit, first, predictive, budget, impulse, locking, step,
                                dwell, dt, keep, nb, js, tree, bodies, groups, top, kin, tau,
@@ -1509,6 +1505,9 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     # placed: kin holds the active joints' kinematics at (q, qd)
     placed = resume_cap(cap_off, energy, left, nb, js, bodies, groups, top, region, q, qd, kin)
     f, done, status = 0, n, 0
+    # the constant arguments below as plain types: numba types a constant as a
+    # literal and would compile the callee once per call site (docs/design.md)
+    yes, no, zero = bool(True), bool(False), np.int64(0)   # noqa: UP018
     for s in range(n):
         step = step0 + s
         t = (time0 + s) * dt
@@ -1531,7 +1530,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                              held, active, up, is_B, groups, pending, mark, order)
         lookahead_on = lookahead_due(lookahead, step + 1)
-        if not evaluate(True, predictive, budget, False, placed, lookahead_on, locking, step + 1,
+        if not evaluate(yes, predictive, budget, no, placed, lookahead_on, locking, step + 1,
                         dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
                         qd, tau, kin, work, region):
             done, status = s, 1
@@ -1539,17 +1538,17 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         if locking and counts[ACCELERATED] < counts[ASSEMBLED]:
             nc = lock_pruned(nb, up, region, stack)
             if nc:
-                change_region(nc, 0, step + 1, momentum, nb, js, tree, groups, top, roots, q,
+                change_region(nc, zero, step + 1, momentum, nb, js, tree, groups, top, roots, q,
                               qd, kin, region, stack)
                 if momentum:                    # the locking impulse (evaluate's impulse)
-                    evaluate(False, predictive, 0, True, False, False, False, step + 1, 0, dt,
+                    evaluate(no, predictive, zero, yes, no, no, no, step + 1, zero, dt,
                              0.0, 1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd,
                              kin, work, region)
                 row[7] += counts[RIGIDIFIED]
             row[0], row[1] = counts[N_JOINTS], counts[FRONT]
             row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
                                  held, active, up, is_B, groups, pending, mark, order)
-            if not evaluate(False, predictive, budget, False, False, lookahead_on, locking,
+            if not evaluate(no, predictive, budget, no, no, lookahead_on, locking,
                             step + 1, dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top,
                             up, roots, q, qd, tau, kin, work, region):
                 done, status = s, 1
@@ -1563,7 +1562,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             change_region(nc, nr, step + 1, momentum, nb, js, tree, groups, top, roots, q, qd,
                           kin, region, stack)
             if nc and momentum:
-                evaluate(False, predictive, 0, True, False, False, False, step + 1, 0, dt, 0.0,
+                evaluate(no, predictive, zero, yes, no, no, no, step + 1, zero, dt, 0.0,
                          1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd, kin, work,
                          region)
             row[7] += counts[RIGIDIFIED]
