@@ -893,20 +893,42 @@ def test_pruned_joints_of_thin_bodies_coast_and_the_rest_are_refined():
         assert err <= 100 * cond * EPS, (metric, err, cond)
 
 
-def _floating_pair(moments, kind):
-    """A floating body (free joint) and a second body on a ``kind`` joint to it,
-    with principal ``moments`` (the same for both, about seeded axes), gravity."""
+def _floating_pairs(moments, kinds):
+    """Per entry of ``kinds``, a floating body (free joint ``2k``) and a second body
+    on a joint ``2k + 1`` of that kind to it, with principal ``moments`` (the same
+    for all, about seeded axes), gravity: one pair, or a forest of them."""
     rng = np.random.default_rng(11)
-    bodies = []
-    for i in range(2):
-        R = random_rotation(rng)
-        inertia = R @ np.diag(moments) @ R.T
-        bodies.append(vdad.Body(f"b{i}", 1.0 + i, (0.1, -0.2, -0.5),
-                                0.5 * (inertia + inertia.T)))
-    joints = [vdad.Joint("j0", None, "b0", "free"),
-              vdad.Joint("j1", "b0", "b1", kind, axis=(0.3, -0.5, 0.8),
-                         placement=vdad.Pose((0.2, 0.0, -1.0)))]
-    return vdad.Model(bodies, joints, name="pair")
+    bodies, joints = [], []
+    for k, kind in enumerate(kinds):
+        for i in range(2):
+            R = random_rotation(rng)
+            inertia = R @ np.diag(moments) @ R.T
+            bodies.append(vdad.Body(f"p{k}b{i}", 1.0 + i, (0.1, -0.2, -0.5),
+                                    0.5 * (inertia + inertia.T)))
+        joints += [vdad.Joint(f"p{k}j0", None, f"p{k}b0", "free"),
+                   vdad.Joint(f"p{k}j1", f"p{k}b0", f"p{k}b1", kind, axis=(0.3, -0.5, 0.8),
+                              placement=vdad.Pose((0.2, 0.0, -1.0)))]
+    return vdad.Model(bodies, joints, name="pairs")
+
+
+def _released_at_rest(model, seed):
+    """A state of :func:`_floating_pairs` in which every second joint is at rest,
+    with joint forces on it, and those joints' nodes of the tree that assembles the
+    free joints last (``baselines.root_last_tree``), locked: each such node is on
+    the front, its only port the free joint, which transmits no wrench. Returns
+    ``(ad, q, qd, tau, {node: dofs of its joint})``."""
+    q, qd, _, _ = random_state(model, seed)
+    tau = np.zeros(model.nv)
+    released = {}
+    ad = AdaptiveDynamics(model, 1e-3, root_last_tree(model), threshold=0.0)
+    for j in range(1, model.nb, 2):
+        d = joint_dofs(model, [j])
+        qd[d] = 0.0
+        tau[d] = np.linspace(0.5, -0.3, len(d))
+        released[model.nb + int(np.flatnonzero(ad.tree.joint == j)[0])] = d
+    rigidify(ad, q, qd, list(released))
+    assert set(released) <= set(ad.front)
+    return ad, q, qd, tau, released
 
 
 @pytest.mark.parametrize("kind", ["revolute", "spherical", "prismatic"])
@@ -919,21 +941,37 @@ def test_the_look_ahead_is_the_released_joints_acceleration(moments, kind):
     ``forward_dynamics``, within 100 cond(M) eps, for ordinary, thin and
     point-mass bodies (the two-body articulated solution with the groups' own
     inertias, (R6) of docs/accuracy.md)."""
-    model = _floating_pair(moments, kind)
-    q, qd, _, _ = random_state(model, 3)
-    d = joint_dofs(model, [1])
-    qd[d] = 0.0                                               # released at rest
-    tau = np.zeros(model.nv)
-    tau[d] = np.linspace(0.5, -0.3, len(d))
-    ad = AdaptiveDynamics(model, 1e-3, root_last_tree(model), threshold=0.0)
-    node = model.nb + int(np.flatnonzero(ad.tree.joint == 1)[0])
-    rigidify(ad, q, qd, [node])
-    assert node in ad.front
+    model = _floating_pairs(moments, [kind])
+    ad, q, qd, tau, released = _released_at_rest(model, 3)
+    (node, d), = released.items()
     evaluate(ad, q, qd, tau)
     qdd = vdad.forward_dynamics(model, q, qd, tau)[d]
     expected = float(np.sum(ad.wA[d] * qdd ** 2))
     cond = np.linalg.cond(crba(model, q))
     assert abs(ad.la[node] - expected) <= 200 * cond * EPS * expected, (ad.la[node], expected)
+
+
+def test_the_look_ahead_of_a_large_forest_runs_on_threads():
+    """On a forest of at least dca.PARALLEL_BODIES bodies the look-ahead runs on
+    numba's threads (``region.lookahead_forest``, each thread with its own
+    scratch): on a forest of floating pairs of every joint kind, each locked
+    joint's look-ahead is its released acceleration in the whole model, as for one
+    pair above, within 200 cond eps of its pair's mass matrix, and every front node
+    is looked ahead once."""
+    kinds = ["revolute", "spherical", "prismatic"]
+    n = vdad.dca.PARALLEL_BODIES // 2 + 2
+    model = _floating_pairs((0.1, 0.08, 0.05), [kinds[k % 3] for k in range(n)])
+    ad, q, qd, tau, released = _released_at_rest(model, 5)
+    assert len(ad.tree.segments) - 1 == n and model.nb >= vdad.dca.PARALLEL_BODIES
+    evaluate(ad, q, qd, tau)
+    assert ad.region.counts[vdad.region.LOOKAHEAD] == n
+    qdd, M = vdad.forward_dynamics(model, q, qd, tau), crba(model, q)
+    for node, d in released.items():
+        j = int(ad.tree.joint[node - model.nb])
+        pair = joint_dofs(model, [j - 1, j])
+        expected = float(np.sum(ad.wA[d] * qdd[d] ** 2))
+        cond = np.linalg.cond(M[np.ix_(pair, pair)])
+        assert abs(ad.la[node] - expected) <= 200 * cond * EPS * expected, (node, expected)
 
 
 def test_the_locking_impulse_of_thin_bodies_conserves_momentum():
