@@ -951,13 +951,13 @@ def test_the_look_ahead_is_the_released_joints_acceleration(moments, kind):
     assert abs(ad.la[node] - expected) <= 200 * cond * EPS * expected, (ad.la[node], expected)
 
 
-def test_the_look_ahead_of_a_large_forest_runs_on_threads():
-    """On a forest of at least dca.PARALLEL_BODIES bodies the look-ahead runs on
-    numba's threads (``region.lookahead_forest``, each thread with its own
-    scratch): on a forest of floating pairs of every joint kind, each locked
-    joint's look-ahead is its released acceleration in the whole model, as for one
-    pair above, within 200 cond eps of its pair's mass matrix, and every front node
-    is looked ahead once."""
+def test_the_look_ahead_of_a_forest_is_each_released_acceleration():
+    """On a forest of at least dca.PARALLEL_BODIES bodies (whose passes run on
+    numba's threads, ``region.region_forest``) the look-ahead of a front node
+    reads the top-down pass's wrenches of its own tree: on a forest of floating
+    pairs of every joint kind, each locked joint's look-ahead is its released
+    acceleration in the whole model, as for one pair above, within 200 cond eps of
+    its pair's mass matrix, and every front node is looked ahead once."""
     kinds = ["revolute", "spherical", "prismatic"]
     n = vdad.dca.PARALLEL_BODIES // 2 + 2
     model = _floating_pairs((0.1, 0.08, 0.05), [kinds[k % 3] for k in range(n)])

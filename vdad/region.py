@@ -734,57 +734,24 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
     released at rest, its children ``A`` and ``B`` held rigid, for the wrenches on
     ``F``'s ports known from the top-down pass (:func:`release_acceleration`).
     Writes only rows that rigid joints own (and restores ``qdd = 0`` on ``j``);
-    ``la`` is NaN on the other front nodes. On a forest of
-    :data:`vdad.dca.PARALLEL_BODIES` bodies or more, on numba's threads
-    (:func:`lookahead_forest`)."""
-    counts = region[10]
-    if in_parallel(nb, tree[14]):
-        counts[LOOKAHEAD] = lookahead_forest(nb, js, tree, bodies, groups, top, up, q, tau_in,
-                                             kin, work, region)
-    else:
-        counts[LOOKAHEAD] = lookahead_entries(0, 1, nb, js, tree, bodies, groups, top, up, q,
-                                              tau_in, kin, kin[9], kin[10], kin[11], work,
-                                              work[11], region)
-
-
-@parallel_kernel
-def lookahead_forest(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, region):
-    """:func:`lookahead_entries` in :data:`FOREST_CHUNKS` chunks on numba's threads
-    (as :func:`region_forest`), each taking every ``T``-th entry of the visit list
-    with its own scratch. Returns the look-aheads taken."""
-    T = FOREST_CHUNKS
-    taken = np.zeros(T, np.int64)                       # per chunk: no reduction variable
-    for t in prange(T):
-        R3, v6, kwork = np.empty_like(kin[9]), np.empty_like(kin[10]), np.empty_like(kin[11])
-        taken[t] = lookahead_entries(t, T, nb, js, tree, bodies, groups, top, up, q, tau_in,
-                                     kin, R3, v6, kwork, work, np.empty_like(work[11]), region)
-    return taken.sum()
-
-
-@pass_kernel
-def lookahead_entries(first, stride, nb, js, tree, bodies, groups, top, up, q, tau_in, kin, R3,
-                      v6, kwork, work, tmp, region):
-    """:func:`lookahead_pass` of the front nodes ``visit[first::stride]``, with the
-    scratch ``R3``, ``v6``, ``kwork`` (the kinematics') and ``tmp`` (8, 6, 6):
-    compiled on its own, as a call from the threads of :func:`lookahead_forest`.
-    Returns the look-aheads taken."""
-    f_J, qdd, tau = work[6], work[7], work[8]
+    ``la`` is NaN on the other front nodes."""
+    f_J, qdd, tau, tmp = work[6], work[7], work[8], work[11]
     joint, v_start, nv_joint = tree[2], js[6], js[7]
-    R_rel, p_rel, S, T, W, R, v = kin[0], kin[1], kin[2], kin[3], kin[4], kin[5], kin[7]
+    R_rel, p_rel, S, T, W, R, pw, v, c_J, R3, v6, kwork = kin
     active, desc, visit, counts, la, wA = (region[0], region[2], region[4], region[10],
                                            region[16], region[18])
     grounded = groups[4]
     stage0, n_stages = js[4], js[5]
     Rw, vw = tmp[6, :3, :3], tmp[6, 3]
-    taken = 0
-    for e in range(first, counts[N_VISIT], stride):
+    counts[LOOKAHEAD] = 0
+    for e in range(counts[N_VISIT]):
         F = visit[e]
         if F < nb or active[F]:
             continue
         if not desc[up[F]]:
             la[F] = np.nan
             continue
-        taken += 1
+        counts[LOOKAHEAD] += 1
         j = joint[F - nb]
         joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, kwork)
         for k in range(v_start[j], v_start[j] + nv_joint[j]):
@@ -803,7 +770,6 @@ def lookahead_entries(first, stride, nb, js, tree, bodies, groups, top, up, q, t
             val += wA[k] * qdd[k] * qdd[k]
             qdd[k] = 0.0
         la[F] = val
-    return taken
 
 
 @inlined
