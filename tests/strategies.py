@@ -147,6 +147,20 @@ def tolerance(model, q, c=100.0):
     return c * np.linalg.cond(crba(model, q)) * np.finfo(float).eps
 
 
+def plain_factor(model):
+    """How much more than a model of ordinary bodies the DCA may lose where its
+    evaluations are not refined ((R2) of docs/accuracy.md): ``(LEAF_RAISE / r)^2``
+    for its thinnest body's ratio ``r`` of smallest moment to scale, at least 1
+    (``r`` stays above ``LEAF_FLOOR`` there, so at most 100); 1 where they are
+    refined (raised leaves), which makes them exact to the mechanics' own bound."""
+    from vdad import dca
+
+    if dca.body_arrays(model)[12] != 0:
+        return 1.0
+    moments, _, scale = dca.body_scales(model)
+    return max(1.0, (dca.LEAF_RAISE / (moments[:, 0] / scale).min()) ** 2)
+
+
 def small_compiled_run(upto="steps"):
     """The compiled kinematics (body positions and velocities), then (``upto``
     ``"dynamics"``, ``"steps"`` or ``"adaptive"``) forward dynamics, then three

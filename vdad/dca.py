@@ -217,6 +217,20 @@ class Leaves(NamedTuple):
     light: np.ndarray      # (nb,) bodies light enough to refine, not to raise
 
 
+def body_scales(model):
+    """(R2) of ``docs/accuracy.md``: each body's principal moments (nb, 3),
+    ascending, their axes (nb, 3, 3) and its scale ``max(I_max, m l^2)`` (nb,),
+    ``l`` the distance from its centre of mass to its farthest joint (its own
+    joint's frame, its children's placements). A body is thin where its smallest
+    moment is a small share of its scale."""
+    lever = np.linalg.norm(model.com, axis=1)
+    for j in np.flatnonzero(model.parent >= 0):
+        b = model.parent[j]
+        lever[b] = max(lever[b], np.linalg.norm(model.com[b] - model.placement_p[j]))
+    moments, axes = np.linalg.eigh(model.inertia)
+    return moments, axes, np.maximum(moments[:, -1], model.mass * lever ** 2)
+
+
 @lru_cache(maxsize=64)
 def leaf_inertias(model) -> Leaves:
     """(R2), (R4) and (R5) of ``docs/accuracy.md``: the inertias that the DCA's
@@ -233,15 +247,12 @@ def leaf_inertias(model) -> Leaves:
     same way: its leaf's mass and inertia are scaled up to :data:`LEAF_RAISE` of
     that neighbour's mass; one lighter than :data:`LEAF_FLOOR` of it, but not that
     light, keeps its inertia and is marked ``light``."""
-    lever = np.linalg.norm(model.com, axis=1)
     neighbour = np.zeros(model.nb)
     for j in np.flatnonzero(model.parent >= 0):
         b = model.parent[j]
-        lever[b] = max(lever[b], np.linalg.norm(model.com[b] - model.placement_p[j]))
         neighbour[j] = max(neighbour[j], model.mass[b])
         neighbour[b] = max(neighbour[b], model.mass[j])
-    moments, axes = np.linalg.eigh(model.inertia)
-    scale = np.maximum(moments[:, -1], model.mass * lever ** 2)
+    moments, axes, scale = body_scales(model)
     thin = moments[:, 0] < LEAF_FLOOR * scale
     heavy = model.mass < LIGHT_RAISE * neighbour
     k = np.where(heavy, LEAF_RAISE * neighbour / model.mass, 1.0)     # the light raise
