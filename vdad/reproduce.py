@@ -28,14 +28,18 @@ EXPERIMENTS = ("table1", "figure8", "figure9", "dogs", "speed_vs_error")
 # the 300-body pendulum of Figures 8-9 and the speed study: beads (radius half a link)
 # seen at 640 x 480, so that links cover pixels when all 300 are in view
 PENDULUM300 = {"n_bodies": 300, "radius": 0.05, "resolution": [640, 480]}
-# the velocity weight of the speed study's "slow" family, relative to the acceleration
-# weight (AdaptiveDynamics' velocity_weights): the falling character rolls on the floor
-# with joint rates that keep its velocity metric above any sub-pixel threshold
-# (docs/reproduction.md)
+# the speed study's "slow" family (the falling character's): the velocity weight
+# relative to the acceleration weight (AdaptiveDynamics' velocity_weights; the character
+# rolls on the floor with joint rates that keep its velocity metric above any sub-pixel
+# threshold), and the dwell and look-ahead period that keep its fall from rigidifying and
+# releasing joints every few steps (docs/reproduction.md, "Speed against measured
+# visual error")
 SLOW = 1e-4
+SLOW_OPTIONS = {"velocity_weights": SLOW, "dwell": 100, "lookahead_every": 5}
+SLOW_FAMILY = (f"view-bvh sphere moved (velocity weights {SLOW:g}, dwell "
+               f"{SLOW_OPTIONS['dwell']}, look-ahead every {SLOW_OPTIONS['lookahead_every']})")
 FAMILIES = ("adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb", "view-oq",
-            "view-bvh sphere moved", f"view-bvh sphere moved (velocity weights {SLOW:g})",
-            "view-oq moved", "lod-distance", "sleeping")
+            "view-bvh sphere moved", SLOW_FAMILY, "view-oq moved", "lod-distance", "sleeping")
 CURVES = ("view-bvh", "view-oq", "view-bvh moved", "view-oq moved")   # of Figures 8 and 9
 TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
 
@@ -85,7 +89,7 @@ def _view(method, threshold, **extra):
 def _family_configs(scene, args, steps, every, values):
     """One run per value of every method family of the speed study, and the DCA
     (the moved-pixels rule at thresholds of its own: its weights are larger; with
-    velocity weights :data:`SLOW` at those of ``values["slow"]``, where given)."""
+    :data:`SLOW_OPTIONS` at those of ``values["slow"]``, where given)."""
     out = [_config(scene, args, "dca", {}, steps, every)]
     for t in values["adaptive"]:
         out.append(_config(scene, args, "adaptive", {"threshold": t}, steps, every))
@@ -100,7 +104,7 @@ def _family_configs(scene, args, steps, every, values):
             out.append(_config(scene, args, m, _view(m, t, pixels="moved"), steps, every))
     for t in values.get("slow", ()):
         out.append(_config(scene, args, "view-bvh",
-                           _view("view-bvh", t, pixels="moved", velocity_weights=SLOW), steps,
+                           _view("view-bvh", t, pixels="moved", **SLOW_OPTIONS), steps,
                            every))
     for d in values["distance"]:
         out.append(_config(scene, args, "lod-distance", {"distance": d}, steps, every))
@@ -174,8 +178,13 @@ def family(config) -> str:
     if method == "view-bvh":
         method += " " + config["options"].get("volume", "sphere")
     name = curve({**config, "method": method})
-    if "velocity_weights" in config["options"]:
-        name += f" (velocity weights {config['options']['velocity_weights']:g})"
+    o = config["options"]
+    if "velocity_weights" in o:
+        extra = [f"velocity weights {o['velocity_weights']:g}"]
+        extra += [f"{label} {o[key]}" for key, label in (("dwell", "dwell"),
+                                                          ("lookahead_every", "look-ahead every"))
+                  if key in o]
+        name += f" ({', '.join(extra)})"
     return name
 
 
