@@ -396,3 +396,53 @@ def test_error_trace_checks_its_columns(tmp_path):
         trace.to_csv(tmp_path / "no_dir" / "x.csv")
     with pytest.raises(InputError, match="path must be a file path"):
         trace.to_csv(3)
+
+
+def test_the_fastest_frames_of_repeated_timers():
+    """Each frame at its fastest over the timers that reached it; the first
+    timer's frames and step counts."""
+    timers = [StepTimer() for _ in range(3)]
+    timers[0].frames = [(0.5, 10), (0.2, 10), (0.4, 10)]
+    timers[1].frames = [(0.3, 10), (0.6, 10), (0.1, 10)]
+    timers[2].frames = [(0.9, 10)]                        # a repeat that stopped early
+    fastest = StepTimer.fastest(timers)
+    assert fastest.frames == [(0.3, 10), (0.2, 10), (0.1, 10)]
+    assert np.isclose(fastest.ms_per_step, 1e3 * (0.2 + 0.1) / 20)
+
+
+def test_repeated_timing_measures_the_same_frames_again(scene):
+    """``repeats`` times the run again from ``restart()``: the error, steps and
+    counts are those of the first pass, each frame is timed at its fastest."""
+    made = []
+
+    def restart():
+        made.append(scene.simulator(method="adaptive", threshold=1e-3))
+        return made[-1]
+
+    once, info_once = measure(restart(), 120, every=20)
+    again, info = measure(restart(), 120, every=20, repeats=3, restart=restart)
+    assert len(made) == 4                                 # 1 + 1 + 2 restarts
+    for name in ("t", "mean_px", "max_px", "differing_pixels"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(once, name))
+    assert info["steps"] == 120 and info["failure"] is None
+    assert info["active_joints"] == info_once["active_joints"]
+    assert all(s.step_count == 120 for s in made)         # every pass took every frame
+    assert info["ms_per_step"] > 0 and info["reference_ms_per_step"] > 0
+
+
+def test_repeated_timing_needs_a_restart_in_the_initial_state(scene):
+    with pytest.raises(InputError, match="repeats=2 needs restart"):
+        measure(scene.simulator(), 20, every=10, repeats=2)
+    with pytest.raises(InputError, match="repeats"):
+        measure(scene.simulator(), 20, every=10, repeats=0)
+
+    def stepped():
+        sim = scene.simulator()
+        sim.step(3)
+        return sim
+
+    with pytest.raises(InputError, match=r"restart\(\) must return a simulator in the "
+                                         r"measured one's initial state \(step 0"):
+        measure(scene.simulator(), 20, every=10, repeats=2, restart=stepped)
+    with pytest.raises(InputError, match=r"restart\(\) must be a vdad.Simulator"):
+        measure(scene.simulator(), 20, every=10, repeats=2, restart=lambda: "sim")

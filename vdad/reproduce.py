@@ -42,6 +42,9 @@ FAMILIES = ("adaptive", "view-bvh sphere", "view-bvh obb", "view-bvh aabb", "vie
             "view-bvh sphere moved", SLOW_FAMILY, "view-oq moved", "lod-distance", "sleeping")
 CURVES = ("view-bvh", "view-oq", "view-bvh moved", "view-oq moved")   # of Figures 8 and 9
 TRACE = ("t", "mean_px", "max_px", "differing_pixels")      # per-frame columns of a run
+# every run and its reference are timed this many times, each frame at its fastest
+# (vdad.visual_error.measure): one pass of Table 1's 20 ms runs spread by 20 %
+REPEATS = 5
 
 
 def _is_number(value):
@@ -200,8 +203,8 @@ def run_config(config) -> dict:
     (a sweep's function).
 
     Returns ``ms_per_step`` and ``reference_ms_per_step`` (timed in the same
-    process), ``speedup``, mean ``active_joints`` of ``joints`` and
-    ``node_visits`` per step, ``steps``,
+    process, :data:`REPEATS` times, each frame at its fastest), ``speedup``, mean
+    ``active_joints`` of ``joints`` and ``node_visits`` per step, ``steps``,
     ``failure`` (the message if the run diverged; its numbers then cover the
     steps before), ``error`` (:meth:`~vdad.visual_error.ErrorTrace.summary`) and
     the per-frame ``trace``."""
@@ -214,8 +217,12 @@ def run_config(config) -> dict:
     if "resolution" in args:
         args["resolution"] = tuple(args["resolution"])
     scene = SCENES[config["scene"]](**args)
-    sim = scene.simulator(method=config["method"], **config["options"])
-    trace, info = measure(sim, config["steps"], config["every"])
+
+    def restart():
+        return scene.simulator(method=config["method"], **config["options"])
+
+    trace, info = measure(restart(), config["steps"], config["every"], repeats=REPEATS,
+                          restart=restart)
     finite = {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
               for k, v in info.items()}
     speedup = info["reference_ms_per_step"] / info["ms_per_step"] if info["steps"] else None

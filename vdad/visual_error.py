@@ -41,9 +41,9 @@ from .spatial import mv
 MEASURES = ("mean_px", "max_px", "differing_pixels")
 
 
-def _check_simulator(sim):
+def _check_simulator(sim, name="sim"):
     if not isinstance(sim, Simulator):
-        raise InputError(f"sim must be a vdad.Simulator, got {type(sim).__name__}")
+        raise InputError(f"{name} must be a vdad.Simulator, got {type(sim).__name__}")
 
 
 def _check_file(name, path):
@@ -190,6 +190,20 @@ def _step_frames(sim, frames, every, bar, reference=None):
     return t, q, q_ref, timer, reference_timer, None
 
 
+def _restarted(restart, start):
+    """``restart()``, checked to be a simulator in the state ``start`` = (step count,
+    q, qd) that the measured one started from."""
+    again = restart()
+    _check_simulator(again, "restart()")
+    step_count, q, qd = start
+    if (again.step_count != step_count or again.q.shape != q.shape
+            or not (np.array_equal(again.q, q) and np.array_equal(again.qd, qd))):
+        raise InputError("restart() must return a simulator in the measured one's initial "
+                         f"state (step {step_count}, the same q and qd); it returned one at "
+                         f"step {again.step_count} with another state")
+    return again
+
+
 class StepTimer:
     """Wall time of a simulator's frames (``with timer.frame(sim): sim.step(n)``);
     :attr:`ms_per_step` leaves out the first frame once there are others, since a
@@ -206,6 +220,16 @@ class StepTimer:
             yield
         finally:
             self.frames.append((time.perf_counter() - start, sim.step_count - count))
+
+    @classmethod
+    def fastest(cls, timers):
+        """The frames of the first of ``timers`` (repeated runs of the same frames),
+        each at its fastest time over the timers that reached it."""
+        out = cls()
+        for i, (_, steps) in enumerate(timers[0].frames):
+            out.frames.append((min(t.frames[i][0] for t in timers if i < len(t.frames)),
+                               steps))
+        return out
 
     @property
     def ms_per_step(self) -> float:
@@ -405,7 +429,8 @@ class ErrorTrace:
 
 
 def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
-            resolution=None, pixels=True, per_body=64, progress=False):
+            resolution=None, pixels=True, per_body=64, progress=False, repeats=1,
+            restart=None):
     """Kim 2008 §3.1: step ``sim`` ``steps`` times and measure the visual error of
     every ``every``-th frame against the fully simulated one: ``reference`` is a
     :class:`Trajectory` recorded with the same time step and ``every`` (its frame
@@ -417,7 +442,12 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
     ``sim``'s; ``resolution``, ``pixels`` (bool) and ``per_body`` go to
     :class:`VisualError`; ``progress`` (bool) shows a progress bar. A
     :class:`~vdad.errors.SimulationError` of ``sim`` (a diverging simplified run)
-    stops the run there, with the frames so far.
+    stops the run there, with the frames so far. ``repeats`` > 1 times the runs
+    again, ``repeats - 1`` more times, each from a new simulator that ``restart()``
+    returns in ``sim``'s initial state (with a new lockstep reference), and keeps
+    each frame's fastest time (:meth:`StepTimer.fastest`): a run of a few
+    milliseconds is otherwise timed with whatever else the machine did then
+    (``docs/reproduction.md``).
 
     Returns the :class:`ErrorTrace` and a dict ``info``: ``ms_per_step`` (of the
     ``sim.step`` calls only, after the first frame: :class:`StepTimer`),
@@ -433,6 +463,11 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
     _check_simulator(sim)
     steps, every, frames = _frames(steps, every)
     pixels, progress = check_flag("pixels", pixels), check_flag("progress", progress)
+    repeats = check_count("repeats", repeats)
+    if repeats > 1 and (restart is None or not callable(restart)):
+        raise InputError(f"repeats={repeats} needs restart, a callable () -> Simulator in "
+                         f"sim's initial state, got {show(restart)}")
+    start = (sim.step_count, sim.q.copy(), sim.qd.copy())
     times = (sim.step_count + every * np.arange(1, frames + 1)) * sim.dt   # (F,)
     if reference is None:
         reference = reference_simulator(sim)
@@ -461,6 +496,15 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
             sim, frames, every, bar, reference if lockstep else None)
     if not lockstep:
         q_ref = reference.q[:len(t)]
+    timers, reference_timers = [timer], [reference_timer]
+    for _ in range(repeats - 1):                # timing only: the same frames again
+        again = _restarted(restart, start)
+        with tqdm(disable=True) as quiet:
+            *_, t_again, ref_again, _ = _step_frames(
+                again, len(t), every, quiet, reference_simulator(again) if lockstep else None)
+        timers.append(t_again)
+        reference_timers.append(ref_again)
+    timer, reference_timer = StepTimer.fastest(timers), StepTimer.fastest(reference_timers)
     failure = None if failure is None else str(failure)
     # the errors after the runs: the measuring renderer, between two steps, would
     # evict the caches of whichever run stepped next and bias its time (docs/reproduction.md)
