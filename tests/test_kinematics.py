@@ -7,7 +7,14 @@ from strategies import random_state, random_tree, relative_error, tolerance
 import vdad
 from vdad import joints as J
 from vdad import reference
-from vdad.kinematics import joint_kinematics, joint_set, plan
+from vdad.kinematics import (
+    Kinematics,
+    joint_kinematics,
+    joint_set,
+    kinematics,
+    kinematics_pass,
+    plan,
+)
 from vdad.scenes import pendulum
 
 
@@ -103,3 +110,44 @@ def test_a_composite_joint_in_gimbal_lock_is_a_simulation_error():
     with pytest.raises(vdad.SimulationError, match=r"step 1 \(t = 0 s\): joint 'gimbal' is in "
                                                    r"gimbal lock"):
         sim.step()
+
+
+def test_fresh_joints_keep_their_placement():
+    """``kinematics_pass(..., fresh)``: the joints marked fresh keep the placement
+    and subspaces that the work arrays hold, the others are placed at ``q`` and
+    marked; every body's pose and velocity follows from the placements (the
+    forces' kinematics of adaptive dynamics, whose rigid joints keep their ``q``)."""
+    model = random_tree(5, n=12, composite=True)
+    js = plan(model)
+    q0, qd, _, _ = random_state(model, 5)
+    q1 = random_state(model, 6)[0]
+    kin, fresh = Kinematics.empty(js), np.zeros(model.nb, bool)
+    kinematics_pass(js.arrays, q0, qd, True, *kin.arrays, fresh)
+    assert fresh.all()
+    names = ("R_rel", "p_rel", "S", "T", "W", "R", "p", "v", "c")
+    at0 = kinematics(model, q0, qd)
+    for name in names:
+        np.testing.assert_array_equal(getattr(kin, name), getattr(at0, name))
+
+    moved = np.arange(model.nb) % 2 == 1            # these joints' q changes; theirs only
+    q = q0.copy()
+    for j in np.flatnonzero(moved):
+        i = slice(model.q_start[j], model.q_start[j] + model.nq_joint[j])
+        q[i] = q1[i]
+    fresh[moved] = False
+    kinematics_pass(js.arrays, q, qd, True, *kin.arrays, fresh)
+    assert fresh.all()
+    at = kinematics(model, q, qd)
+    for name in names:
+        np.testing.assert_array_equal(getattr(kin, name), getattr(at, name))
+    assert not np.allclose(at.R, at0.R)
+
+    j = 2                                            # moved while marked fresh: stale
+    i = slice(model.q_start[j], model.q_start[j] + model.nq_joint[j])
+    q[i] = q1[i]
+    kinematics_pass(js.arrays, q, qd, True, *kin.arrays, fresh)
+    now = kinematics(model, q, qd)
+    for name in ("R_rel", "p_rel"):
+        np.testing.assert_array_equal(getattr(kin, name)[j], getattr(at, name)[j])
+    assert not (np.allclose(kin.R_rel[j], now.R_rel[j]) and np.allclose(kin.p_rel[j],
+                                                                        now.p_rel[j]))

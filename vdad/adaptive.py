@@ -348,10 +348,11 @@ class AdaptiveDynamics:
         self.kin = self.data.kin
         self._pose_kin = Kinematics.empty(plan(model))
         # the step's force sources (controller, external, compiled tables) and the
-        # work arrays of the compiled ones (every body's kinematics and states)
+        # work arrays of the compiled ones (every body's kinematics and states; the
+        # joints whose placement the kinematics hold, vdad.region.region_steps)
         self._sources = (None, None, None)
         self._force_work = (Kinematics.empty(plan(model)), np.empty((2, nb, 3)),
-                            np.empty((nb, 6)), np.empty(model.nv))
+                            np.empty((nb, 6)), np.empty(model.nv), np.zeros(nb, np.bool_))
         self._force_key, self._force_order = None, None
         self._force_F = None                            # the tables of _force_order
         self._roots = np.flatnonzero(tree.up == -1).astype(np.int64)
@@ -627,7 +628,7 @@ class AdaptiveDynamics:
         controller, external, tables = self._sources
         if tables is not None:
             F, e = tables
-            kin, states, f_ext, tau = self._force_work
+            kin, states, f_ext, tau, _ = self._force_work
             with compiling(body_forces):
                 body_forces(self.force_joints(F), F, e + k, t, q, qd, kin.arrays, states, f_ext,
                             tau)

@@ -844,12 +844,14 @@ def apply_forces(F, e, t, R, p, w, v, q, qd, f, tau):
 
 
 @pass_kernel
-def body_forces(js, F, e, t, q, qd, kin, states, f, tau):
+def body_forces(js, F, e, t, q, qd, kin, states, f, tau, fresh=None):
     """Every built-in element of the tables ``F`` at evaluation ``e`` and time ``t``
     at ``(q, qd)``, into ``f`` (nb, 6) and ``tau`` (nv,), both zeroed first: every
     body's state (kinematics with velocities into ``kin``, world-axes angular
-    and origin velocities into ``states`` (2, nb, 3)), then :func:`apply_forces`."""
-    kinematics_pass(js, q, qd, True, *kin)
+    and origin velocities into ``states`` (2, nb, 3)), then :func:`apply_forces`.
+    ``fresh``: the joints whose placement ``kin`` holds already
+    (:func:`~vdad.kinematics.kinematics_pass`)."""
+    kinematics_pass(js, q, qd, True, *kin, fresh)
     R, p, v, w, vo = kin[5], kin[6], kin[7], states[0], states[1]
     world_velocities(R, v, w, vo)
     for i in range(f.shape[0]):

@@ -418,18 +418,26 @@ def body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_
 
 
 @pass_kernel
-def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work):
+def kinematics_pass(js, q, qd, velocities, R_rel, p_rel, S, T, W, R, p, v, c, R3, v6, work,
+                    fresh=None):
     """Theory §3 for every joint of the set ``js`` (:attr:`JointSet.arrays`), parents
     first: placement, subspaces of multi-stage joints, world pose and, if
     ``velocities``, the body velocity and ``c_J``. ``order`` may end early at a
-    -1 (the active joints of adaptive dynamics, :mod:`vdad.region`)."""
+    -1 (the active joints of adaptive dynamics, :mod:`vdad.region`). ``fresh``
+    (model joints,) bool, or None: a joint whose entry is true keeps the placement
+    and subspaces that ``R_rel``, ``p_rel``, ``S``, ``T``, ``W`` hold (its ``q`` has
+    not changed since: a rigid joint of adaptive dynamics); the others are placed
+    and marked fresh."""
     (order, parent, R0, p0, stage0, n_stages, v_start, nv_joint, stage_kind, stage_axis,
      stage_anchor, stage_ref, stage_q, stage_v, s_pad, subspace) = js
     for idx in range(order.shape[0]):
         j = order[idx]
         if j < 0:
             break
-        joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, work)
+        if fresh is None or not fresh[j]:
+            joint_motion(j, js, q, R_rel, p_rel, S, T, W, R3, v6, work)
+            if fresh is not None:
+                fresh[j] = True
         body_pose(j, parent, R_rel, p_rel, R, p)
         if velocities:
             body_velocity(j, parent, stage0, n_stages, stage_kind, stage_v, v_start, nv_joint,

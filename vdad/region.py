@@ -1454,16 +1454,18 @@ STEP_COUNTERS = ("active_joints", "front", "accelerated", "assembled", "back_sub
 
 
 @pass_kernel
-def forces_now(use, F, e, t, js, q, qd, fkin, states, f_ext, tau, held, active, up, is_B,
-               groups, pending, mark, order):
+def forces_now(use, F, e, t, js, q, qd, fkin, fresh, states, f_ext, tau, held, active, up,
+               is_B, groups, pending, mark, order):
     """The built-in forces of the tables ``F`` at evaluation ``e`` (with ``use``;
     else ``tau`` is zero and no wrench acts) and their changes carried up the
-    rigid groups (:func:`vdad.hybrid.carry_forces`). Returns its node visits."""
+    rigid groups (:func:`vdad.hybrid.carry_forces`); the forces' kinematics
+    ``fkin`` place only the joints not ``fresh`` (:func:`vdad.forces.body_forces`).
+    Returns its node visits."""
     if not use:
         for i in range(tau.shape[0]):
             tau[i] = 0.0
         return 0
-    body_forces(js, F, e, t, q, qd, fkin, states, f_ext, tau)
+    body_forces(js, F, e, t, q, qd, fkin, states, f_ext, tau, fresh)
     return carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order)
 
 
@@ -1484,8 +1486,10 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     ``sums`` = the force sums held by the groups and ``carry_forces``' scratch;
     ``force_work`` = (the joints whose kinematics the forces read,
     ``AdaptiveDynamics.force_joints``; kinematics, states, f_ext, tau of every
-    body); ``energy``, ``cap_off``, ``left``: the energy cap's (:func:`resume_cap`
-    before the steps, :func:`cap_energy` after each); ``coverage`` = (constants, frames) of
+    body; ``fresh``, the joints whose placement those kinematics hold: none at
+    the start, the rigid ones once placed, :func:`forces_now`); ``energy``,
+    ``cap_off``, ``left``: the energy cap's (:func:`resume_cap` before the steps,
+    :func:`cap_energy` after each); ``coverage`` = (constants, frames) of
     ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
     :func:`vdad.visibility.region_bvh_pass` before the steps ``frames[0]``
     (ascending) of the call, each under its camera (none if empty), from the
@@ -1498,11 +1502,13 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     predictive, budget, lookahead, locking, momentum, dwell, dt, keep, kappa, threshold = \
         options
     held, pending, mark, order, is_B = sums
-    fjs, fkin, states, f_ext, tau = force_work
+    fjs, fkin, states, f_ext, tau, fresh = force_work
     active, counts, qdd = region[0], region[10], work[7]
     (codes, first, poses, volumes, cache, world, N1, moved, scratch), (due, views, Rcs, pcs) = \
         coverage
-    # placed: kin holds the active joints' kinematics at (q, qd)
+    # placed: kin holds the active joints' kinematics at (q, qd); fresh: the joints
+    # whose placement the forces' kinematics hold at q (none: q comes from Python)
+    fresh[:] = False
     placed = resume_cap(cap_off, energy, left, nb, js, bodies, groups, top, region, q, qd, kin)
     f, done, status = 0, n, 0
     # the constant arguments below as plain types: numba types a constant as a
@@ -1527,8 +1533,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         for c in range(row.shape[0]):
             row[c] = 0
         row[0], row[1] = counts[N_JOINTS], counts[FRONT]
-        row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
-                             held, active, up, is_B, groups, pending, mark, order)
+        row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, fresh, states, f_ext,
+                             tau, held, active, up, is_B, groups, pending, mark, order)
         lookahead_on = lookahead_due(lookahead, step + 1)
         if not evaluate(yes, predictive, budget, no, placed, lookahead_on, locking, step + 1,
                         dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
@@ -1546,14 +1552,17 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                              kin, work, region)
                 row[7] += counts[RIGIDIFIED]
             row[0], row[1] = counts[N_JOINTS], counts[FRONT]
-            row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, states, f_ext, tau,
-                                 held, active, up, is_B, groups, pending, mark, order)
+            row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, fresh, states,
+                                 f_ext, tau, held, active, up, is_B, groups, pending, mark,
+                                 order)
             if not evaluate(no, predictive, budget, no, no, lookahead_on, locking,
                             step + 1, dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top,
                             up, roots, q, qd, tau, kin, work, region):
                 done, status = s, 1
                 break
         euler_active(dt, js, bodies, region, q, qd, qdd)
+        for x in range(counts[N_JOINTS]):               # their q moved
+            fresh[region[6][x]] = False
         row[2], row[3], row[4], row[6] = (counts[ACCELERATED], counts[ASSEMBLED], counts[SOLVED],
                                           counts[LOOKAHEAD])
         nc, nr = update_region(step + 1, budget, lookahead_on, dt, threshold, keep, dwell, nb, js,
