@@ -435,6 +435,8 @@ def test_repeated_timing_needs_a_restart_in_the_initial_state(scene):
         measure(scene.simulator(), 20, every=10, repeats=2)
     with pytest.raises(InputError, match="repeats"):
         measure(scene.simulator(), 20, every=10, repeats=0)
+    with pytest.raises(InputError, match="restart must be a callable"):
+        measure(scene.simulator(), 20, every=10, repeats=2, restart="again")
 
     def stepped():
         sim = scene.simulator()

@@ -30,7 +30,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Camera, camera_at, check_path, check_resolution
-from .checks import check_count, check_finite, check_flag, check_real, real_array, show
+from .checks import (
+    check_callable,
+    check_count,
+    check_finite,
+    check_flag,
+    check_real,
+    real_array,
+    show,
+)
 from .environment import check_environment
 from .errors import InputError, SimulationError
 from .kinematics import world_poses
@@ -196,8 +204,8 @@ def _restarted(restart, start):
     again = restart()
     _check_simulator(again, "restart()")
     step_count, q, qd = start
-    if (again.step_count != step_count or again.q.shape != q.shape
-            or not (np.array_equal(again.q, q) and np.array_equal(again.qd, qd))):
+    if not (again.step_count == step_count and np.array_equal(again.q, q)
+            and np.array_equal(again.qd, qd)):
         raise InputError("restart() must return a simulator in the measured one's initial "
                          f"state (step {step_count}, the same q and qd); it returned one at "
                          f"step {again.step_count} with another state")
@@ -464,9 +472,10 @@ def measure(sim, steps, every=1, reference=None, camera=None, environment=None,
     steps, every, frames = _frames(steps, every)
     pixels, progress = check_flag("pixels", pixels), check_flag("progress", progress)
     repeats = check_count("repeats", repeats)
-    if repeats > 1 and (restart is None or not callable(restart)):
+    check_callable("restart", restart, "() -> Simulator in sim's initial state")
+    if repeats > 1 and restart is None:
         raise InputError(f"repeats={repeats} needs restart, a callable () -> Simulator in "
-                         f"sim's initial state, got {show(restart)}")
+                         f"sim's initial state")
     start = (sim.step_count, sim.q.copy(), sim.qd.copy())
     times = (sim.step_count + every * np.arange(1, frames + 1)) * sim.dt   # (F,)
     if reference is None:
