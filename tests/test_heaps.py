@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vdad.heaps import heap_pop, heap_push, sort_ascending
+from vdad.heaps import heap_pop, heap_push, sort_ascending, sort_marked
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -17,6 +17,20 @@ def test_sort_ascending_sorts_a_prefix_only(seed):
     sort_ascending(out, n)
     np.testing.assert_array_equal(out[:n], np.sort(a[:n]))
     np.testing.assert_array_equal(out[n:], a[n:])
+
+
+@pytest.mark.parametrize("size", [3, 12, 30, 40])
+def test_sort_marked_lists_the_marked_entries_in_ascending_order(size):
+    """A few marked entries (heapsort) and many (a scan of the marks) alike."""
+    rng = np.random.default_rng(size)
+    mark = np.zeros(40, bool)
+    chosen = rng.choice(40, size=size, replace=False)
+    mark[chosen] = True
+    a = np.full(40, -7)
+    a[:size] = chosen
+    sort_marked(a, size, mark)
+    np.testing.assert_array_equal(a[:size], np.sort(chosen))
+    np.testing.assert_array_equal(a[size:], -7)
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -44,6 +44,8 @@ def _direction(v):
 
 def _time(t):
     """The time ``t`` of a camera path as a float, or an error naming it."""
+    if isinstance(t, float) and math.isfinite(t):     # the common case, in a path's call
+        return float(t)
     return float(check_real("camera path time t", t))
 
 
@@ -106,13 +108,15 @@ class Camera:
         between them and the viewing direction kept), so unchecked but for a
         finite position: a path's camera in microseconds instead of a checked one's
         third of a millisecond."""
-        position = tuple(float(x) for x in position)
-        if not all(math.isfinite(x) for x in position):
+        position = tuple(map(float, position))
+        if not all(map(math.isfinite, position)):
             raise InputError(f"camera path left the finite numbers: position {position}")
         out = object.__new__(Camera)
         out.__dict__.update(self.__dict__)
-        rotation = np.array(rotation, float)
-        rotation.setflags(write=False)
+        if not (isinstance(rotation, np.ndarray) and rotation.dtype == float
+                and not rotation.flags.writeable):      # a read-only array is kept as is
+            rotation = np.array(rotation, float)
+            rotation.setflags(write=False)
         out.__dict__.update(position=position, rotation=rotation)
         return out
 
@@ -204,12 +208,19 @@ class Dolly:
         object.__setattr__(self, "start", float(check_real("dolly start", self.start)))
 
     def __call__(self, t):
+        pos, back, reach = self._axis
+        s = max(_time(t) - self.start, 0.0) * self.speed
+        s = max(s, -reach)                                     # never pass the target
+        return self.camera._moved(pos + s * back, self.camera.rotation)
+
+    @cached_property
+    def _axis(self):
+        """The start position (3,), the unit vector from the target to it (3,) and
+        the distance the camera may move towards the target."""
         c = self.camera
         pos, tgt = np.asarray(c.position, float), np.asarray(c.target, float)
-        back = (pos - tgt) / np.linalg.norm(pos - tgt)
-        s = max(_time(t) - self.start, 0.0) * self.speed
-        s = max(s, -np.linalg.norm(pos - tgt) * (1 - 1e-6))      # never pass the target
-        return c._moved(pos + s * back, c.rotation)
+        d = np.linalg.norm(pos - tgt)
+        return pos, (pos - tgt) / d, d * (1 - 1e-6)
 
 
 @dataclass(frozen=True)

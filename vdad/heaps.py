@@ -1,7 +1,8 @@
 """Binary max-heaps in arrays, for compiled passes: the budget heap of adaptive
 dynamics (Kim 2008 §4.2, budget mode: keys with node ids as values,
-``vdad.region.run_heap``) and a heapsort of index lists (``vdad.region.rebuild``,
-``vdad.hybrid.carry_forces``). Nothing allocates; the heap lives in ``keys[:n]``."""
+``vdad.region.run_heap``), a heapsort of index lists (``vdad.region.rebuild``)
+and the ascending order of a marked set (``vdad.hybrid.carry_forces``). Nothing
+allocates; the heap lives in ``keys[:n]``."""
 
 from __future__ import annotations
 
@@ -58,3 +59,18 @@ def sort_ascending(a, n):
     for end in range(n - 1, 0, -1):
         a[0], a[end] = a[end], a[0]
         sift_down(a, none, 0, end)
+
+
+@inlined
+def sort_marked(a, n, mark):
+    """``a[:n]``, the entries whose ``mark`` is set (every set one, each once), in
+    ascending order: a heapsort (O(n log n)) while they are few, else a scan of
+    ``mark`` (O(len(mark))), which costs less once ``n`` is a quarter of it."""
+    if 4 * n < mark.shape[0]:
+        sort_ascending(a, n)
+        return
+    k = 0
+    for i in range(mark.shape[0]):
+        if mark[i]:
+            a[k] = i
+            k += 1

@@ -45,7 +45,7 @@ from ._linalg import (
     pass_kernel,
 )
 from .dca import leaf_inertias
-from .heaps import sort_ascending
+from .heaps import sort_marked
 from .kinematics import joint_placement, plan
 
 
@@ -286,7 +286,7 @@ def carry_forces(f_ext, held, active, up, is_B, groups, pending, mark, order):
             mark[node] = True
             order[n] = node
             n += 1
-    sort_ascending(order, n)
+    sort_marked(order, n, mark)
     K2 = pending[2, 0]
     for k in range(n):
         node = order[k]
