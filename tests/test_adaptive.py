@@ -1014,3 +1014,42 @@ def test_forces_place_only_the_bodies_they_read():
         assert sorted(order) == placed
         assert all(model.parent[b] < 0 or model.parent[b] in order[:k]     # parents first
                    for k, b in enumerate(order))
+
+
+def test_the_evaluation_takes_the_active_joints_kinematics_from_the_forces():
+    """``region.take_kinematics``: on a region with rigid groups (the falling
+    character, 300 steps), the active joints' kinematics taken from those of every
+    joint at the same state equal the ones ``active_kinematics`` computes on the
+    kinematic parents, to rounding; if one active joint is missing from the
+    forces' kinematics it declines and leaves them untouched."""
+    from vdad.kinematics import Kinematics, kinematics, plan
+    from vdad.region import N_JOINTS, active_kinematics, take_kinematics
+    from vdad.scenes import SCENES
+
+    sim = SCENES["falling_character"]().simulator(method="adaptive", threshold=1e-5,
+                                                 velocity_weights=1e-4)
+    sim.step(300)
+    ad, js = sim.adaptive, plan(sim.model)
+    region = ad.region.arrays
+    joints = region[6][:region[10][N_JOINTS]]
+    assert 0 < len(joints) < sim.model.nb            # some joints placed on a group's frame
+    assert np.any(region[7][joints] != np.asarray(sim.model.parent)[joints])
+    forces = kinematics(sim.model, sim.q, sim.qd)
+    taken, computed = Kinematics.empty(js), Kinematics.empty(js)
+    fresh = np.ones(sim.model.nb, bool)
+    assert take_kinematics(js.arrays, region, fresh, forces.arrays, taken.arrays)
+    active_kinematics(js.arrays, region, sim.q, sim.qd, True, computed.arrays)
+    u = js.subspace[joints]
+    for a, b, rows in ((taken.R_rel, computed.R_rel, joints), (taken.p_rel, computed.p_rel, joints),
+                       (taken.S, computed.S, u), (taken.T, computed.T, u),
+                       (taken.W, computed.W, u), (taken.R, computed.R, joints),
+                       (taken.p, computed.p, joints), (taken.v, computed.v, joints),
+                       (taken.c, computed.c, joints)):
+        scale = max(1.0, np.abs(b[rows]).max())
+        np.testing.assert_allclose(a[rows], b[rows], rtol=0, atol=64 * EPS * scale)
+    fresh[joints[len(joints) // 2]] = False
+    before = [a.copy() for a in taken.arrays[:9]]
+    forces.R[joints] += 1.0
+    assert not take_kinematics(js.arrays, region, fresh, forces.arrays, taken.arrays)
+    for a, b in zip(taken.arrays[:9], before, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -81,6 +81,7 @@ from .region import (
     region_poses,
     resume_cap,
     rk4_active,
+    take_kinematics,
     update_region,
 )
 from .visibility import idle_loop_coverage
@@ -572,12 +573,13 @@ class AdaptiveDynamics:
                        self._zero_tau if tau is None else as_input(tau))
         return self.data.qdd.copy()
 
-    def _evaluate(self, first, q, qd, tau):
-        """The compiled evaluation (``vdad.region.evaluate``); an InputError naming
+    def _evaluate(self, first, q, qd, tau, placed=False):
+        """The compiled evaluation (``vdad.region.evaluate``; ``placed``: ``kin``
+        holds the active joints' kinematics at ``(q, qd)``); an InputError naming
         the joint if ``qdd`` is not finite."""
         budget = 0 if self.budget is None else self.budget
         with compiling(evaluate):
-            ok = evaluate(first, self.predictive, budget, False, False,
+            ok = evaluate(first, self.predictive, budget, False, placed,
                           self._lookahead_at(self.step_count + 1),
                           self.drop == "lock", self.step_count + 1, self.dwell, self.dt,
                           self._keep, self.kappa, self.model.nb, *self._args()[:4], self._top,
@@ -628,10 +630,12 @@ class AdaptiveDynamics:
         controller, external, tables = self._sources
         if tables is not None:
             F, e = tables
-            kin, states, f_ext, tau, _ = self._force_work
+            kin, states, f_ext, tau, placed = self._force_work
+            js = self.force_joints(F)
             with compiling(body_forces):
-                body_forces(self.force_joints(F), F, e + k, t, q, qd, kin.arrays, states, f_ext,
-                            tau)
+                body_forces(js, F, e + k, t, q, qd, kin.arrays, states, f_ext, tau)
+            placed[:] = False                           # the joints kin holds (_stage)
+            placed[js[0]] = True
             return tau, f_ext
         tau = f_ext = None
         if controller is not None:
@@ -830,7 +834,7 @@ class AdaptiveDynamics:
                 self._stale_coverage = self._refresh_on_change
         self.step_count += rows
         if tables is not None:
-            self.groups.any_force = bool(np.any(self.groups.f_ext))
+            self.groups.any_force = bool(self.groups.f_ext.any())
         return done, status, last[0], last[1]
 
     def _change(self, nc, nr, step, q, qd):
@@ -880,7 +884,13 @@ class AdaptiveDynamics:
         st.force_update += self.groups.update_forces(f_ext, self.active)
         t1 = time.perf_counter()
         st.times["forces"] += t1 - t0
-        self._evaluate(first, q, qd, self._zero_tau if tau is None else tau)
+        placed = False
+        if self._sources[2] is not None:    # the active joints' kinematics from the forces'
+            fkin, fresh = self._force_work[0], self._force_work[4]
+            with compiling(take_kinematics):
+                placed = take_kinematics(plan(self.model).arrays, self.region.arrays, fresh,
+                                         fkin.arrays, self.kin.arrays)
+        self._evaluate(first, q, qd, self._zero_tau if tau is None else tau, placed)
         st.times["dynamics"] += time.perf_counter() - t1
 
     def _checked_coverage(self, t, q):

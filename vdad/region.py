@@ -45,6 +45,7 @@ from numba import prange
 from ._linalg import (
     cholesky,
     cholesky_solve,
+    copy_pose,
     copy_state,
     identity_pose,
     inlined,
@@ -484,6 +485,39 @@ def active_kinematics(js, region, q, qd, velocities, kin):
     ajs = (region[6], region[7], region[8], region[9], js[4], js[5], js[6], js[7], js[8], js[9],
            js[10], js[11], js[12], js[13], js[14], js[15])
     kinematics_pass(ajs, q, qd, velocities, *kin)
+
+
+@pass_kernel
+def take_kinematics(js, region, fresh, fkin, kin):
+    """:func:`active_kinematics` with velocities, taken from ``fkin``, the kinematics
+    of the forces at the same ``(q, qd)`` (:func:`~vdad.forces.body_forces`), if
+    those placed every active joint (``fresh``, :func:`forces_now`): the world
+    poses, body velocities, ``c_J`` and subspaces copied, and each placement in its
+    kinematic parent's frame from the two world poses, without the joints'
+    trigonometry (``docs/adaptive.md``, "Whole steps in compiled code"). Returns
+    whether it did (else ``kin`` is untouched)."""
+    joints, par, counts = region[6], region[7], region[10]
+    n_stages, subspace = js[5], js[15]
+    for x in range(counts[N_JOINTS]):
+        if not fresh[joints[x]]:
+            return False
+    R_rel, p_rel, S, T, W, R, p, v, c = kin[:9]
+    fS, fT, fW, fR, fp, fv, fc = fkin[2:9]
+    for x in range(counts[N_JOINTS]):
+        j = joints[x]
+        if n_stages[j] > 1:                      # the subspaces of a multi-stage joint
+            u = subspace[j]
+            for r in range(6):
+                for m in range(6):
+                    S[u, r, m], T[u, r, m], W[u, r, m] = fS[u, r, m], fT[u, r, m], fW[u, r, m]
+        copy_pose(fR[j], fp[j], R[j], p[j])
+        for r in range(6):
+            v[j, r], c[j, r] = fv[j, r], fc[j, r]
+        if par[j] < 0:
+            copy_pose(fR[j], fp[j], R_rel[j], p_rel[j])
+        else:
+            relative_pose(fR[par[j]], fp[par[j]], fR[j], fp[j], R_rel[j], p_rel[j])
+    return True
 
 
 @pass_kernel
@@ -1535,6 +1569,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         row[0], row[1] = counts[N_JOINTS], counts[FRONT]
         row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, fresh, states, f_ext,
                              tau, held, active, up, is_B, groups, pending, mark, order)
+        if use_forces and take_kinematics(js, region, fresh, fkin, kin):
+            placed = True
         lookahead_on = lookahead_due(lookahead, step + 1)
         if not evaluate(yes, predictive, budget, no, placed, lookahead_on, locking, step + 1,
                         dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
@@ -1555,7 +1591,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             row[5] += forces_now(use_forces, F, e0 + s, t, fjs, q, qd, fkin, fresh, states,
                                  f_ext, tau, held, active, up, is_B, groups, pending, mark,
                                  order)
-            if not evaluate(no, predictive, budget, no, no, lookahead_on, locking,
+            again = use_forces and take_kinematics(js, region, fresh, fkin, kin)
+            if not evaluate(no, predictive, budget, no, again, lookahead_on, locking,
                             step + 1, dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top,
                             up, roots, q, qd, tau, kin, work, region):
                 done, status = s, 1
