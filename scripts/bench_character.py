@@ -71,10 +71,10 @@ def main():
         us = 1e6 * best[name] / steps                          # (windows,)
         h = history[name]
         per = [h[k * WINDOW:(k + 1) * WINDOW] for k in range(STEPS // WINDOW)]
-        scene = SCENES["falling_character"]()
         error = None
         if method != "dca":
-            trace, _ = measure(scene.simulator(method=method, **options), STEPS, EVERY)
+            sim = SCENES["falling_character"]().simulator(method=method, **options)
+            trace, _ = measure(sim, STEPS, EVERY)
             error = float(np.mean(trace.mean_px))
         rows.append(dict(
             run=name, method=method, options=options, us_per_window=us.tolist(),

@@ -630,12 +630,12 @@ class AdaptiveDynamics:
         controller, external, tables = self._sources
         if tables is not None:
             F, e = tables
-            kin, states, f_ext, tau, placed = self._force_work
+            kin, states, f_ext, tau, fresh = self._force_work
             js = self.force_joints(F)
             with compiling(body_forces):
                 body_forces(js, F, e + k, t, q, qd, kin.arrays, states, f_ext, tau)
-            placed[:] = False                           # the joints kin holds (_stage)
-            placed[js[0]] = True
+            fresh[:] = False                            # the joints kin holds (_stage)
+            fresh[js[0]] = True
             return tau, f_ext
         tau = f_ext = None
         if controller is not None:
