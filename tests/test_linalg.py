@@ -86,6 +86,28 @@ def test_complement_spans_the_null_space_of_S_transposed(d):
     assert not T[:, 6 - d:].any() and not W[:, d:].any()
 
 
+@pytest.mark.parametrize("skew", [0.0, 1e-9])
+def test_complement_of_a_free_joint_takes_W_as_S(skew):
+    """A free joint's six orthonormal columns (its ball at the child's origin) have
+    W = S and no T, taken as they are; columns a little off orthonormal go through
+    the factorisation, and both satisfy (T5) as the numpy reference does."""
+    from vdad.joints import complement
+
+    R = quat_to_rot(np.array([0.8, 0.2, -0.4, 0.4]) / np.linalg.norm([0.8, 0.2, -0.4, 0.4]))
+    S = np.zeros((6, 6))
+    S[:3, 3:], S[3:, :3] = np.eye(3), R.T
+    S[0, 0] += skew
+    T, W = np.full((6, 6), np.nan), np.full((6, 6), np.nan)
+    L.complement(S, 6, T, W, np.empty((3, 6, 6)))
+    assert not T.any()
+    if skew == 0.0:
+        np.testing.assert_array_equal(W, S)
+    else:
+        assert not np.array_equal(W, S)
+    np.testing.assert_allclose(S.T @ W, np.eye(6), rtol=0, atol=50 * EPS)
+    np.testing.assert_allclose(W, complement(S[None])[1][0], rtol=0, atol=50 * EPS)
+
+
 @pytest.mark.parametrize("gap", [1e-4, 1e-8, 0.0])
 def test_complement_near_and_at_a_loss_of_rank(gap):
     """W = Q_1 R^-T keeps the accuracy of S (its error follows cond(S), where the

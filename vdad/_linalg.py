@@ -570,8 +570,25 @@ def solve_general(K, x, n):
 
 
 @inlined
+def orthonormal(S, tol):
+    """Whether the columns of ``S`` (6, 6) are orthonormal: every entry of ``S^T
+    S - 1`` within ``tol``."""
+    for a in range(6):
+        for b in range(a, 6):
+            g = 0.0
+            for i in range(6):
+                g += S[i, a] * S[i, b]
+            if abs(g - (1.0 if a == b else 0.0)) > tol:
+                return False
+    return True
+
+
+@inlined
 def complement(S, d, T, W, work):
-    """``T`` and ``W`` of theory (T5) for the first ``d`` columns of ``S`` (6, 6),
+    """``T`` and ``W`` of theory (T5) for the first ``d`` columns of ``S`` (6, 6).
+    Six orthonormal columns (a free joint whose ball turns about its child's
+    origin: ``docs/joints.md``) have ``W = S`` and no ``T``, taken as they are (to
+    ``16 eps`` in ``S^T S``, the rounding of a rotation matrix). Otherwise
     from a Householder QR ``S = Q R``: ``T``'s first ``6 - d`` columns the last
     columns of ``Q``, an orthonormal basis of ``null(S^T)``, and ``W = S (S^T
     S)^-1 = Q_1 R^-T`` in ``W``'s first ``d`` columns (``Q_1`` the first ``d``
@@ -581,6 +598,12 @@ def complement(S, d, T, W, work):
     largest: a composite joint in gimbal lock) ``W`` is NaN, which the callers
     report. ``work`` (3, 6, 6) is scratch. Any basis of ``null(S^T)`` gives the
     same (T7)."""
+    if d == 6 and orthonormal(S, 16.0 * 2.220446049250313e-16):
+        for i in range(6):
+            for j in range(6):
+                T[i, j] = 0.0
+                W[i, j] = S[i, j]
+        return
     Q, Rf, Z = work[0], work[1], work[2]
     h = Z[0]                                  # Z is needed only after the reflections
     for i in range(6):
