@@ -1552,9 +1552,10 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         step = step0 + s
         t = (time0 + s) * dt
         if f < due.shape[0] and due[f] == s:    # N_M of the frame (Kim 2008 §5.3)
-            if not placed:                      # the step's own kinematics (evaluate)
-                active_kinematics(js, region, q, qd, True, kin)
-                placed = True
+            if not placed:                      # the step's own poses; with forces,
+                # take_kinematics below replaces them, velocities and all
+                active_kinematics(js, region, q, qd, not use_forces, kin)
+                placed = not use_forces
             v = views[f]
             region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
                             tree[1], (tree[13], tree[14]), first,
