@@ -1527,7 +1527,9 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
     :func:`vdad.visibility.region_bvh_pass` before the steps ``frames[0]``
     (ascending) of the call, each under its camera (none if empty), from the
-    active joints' kinematics that the step's first evaluation then takes. Writes
+    active joints' poses at the step's ``q`` (as ``AdaptiveDynamics.front_kinematics``
+    places them for the Python steps; without forces, with the velocities that the
+    step's first evaluation then takes). Writes
     each step's :data:`STEP_COUNTERS` into ``counters`` (n, 9) and keeps the state
     before the last step in ``last`` (q, qd). Stops after a step that changed the
     region if ``stop_on_change`` (the coverage is stale then). Returns ``(steps done,
