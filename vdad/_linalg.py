@@ -91,6 +91,7 @@ def compiling(dispatcher):
 
 _called = set()
 _NOTHING = contextlib.nullcontext()
+EPS = float(np.finfo(float).eps)    # the rounding unit, a compile-time constant in kernels
 
 
 def source_stamp():
@@ -598,7 +599,7 @@ def complement(S, d, T, W, work):
     largest: a composite joint in gimbal lock) ``W`` is NaN, which the callers
     report. ``work`` (3, 6, 6) is scratch. Any basis of ``null(S^T)`` gives the
     same (T7)."""
-    if d == 6 and orthonormal(S, 16.0 * 2.220446049250313e-16):
+    if d == 6 and orthonormal(S, 16.0 * EPS):
         for i in range(6):
             for j in range(6):
                 T[i, j] = 0.0
@@ -654,7 +655,7 @@ def complement(S, d, T, W, work):
         big = max(big, abs(Rf[k, k]))
     singular = False
     for k in range(d):
-        singular = singular or not abs(Rf[k, k]) > 64.0 * 2.220446049250313e-16 * big
+        singular = singular or not abs(Rf[k, k]) > 64.0 * EPS * big
     for i in range(6):
         for c in range(d - 1, -1, -1):
             acc = W[i, c]

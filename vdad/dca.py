@@ -45,6 +45,7 @@ from numba import prange
 
 from . import joints as J
 from ._linalg import (
+    EPS,
     cholesky,
     finite,
     identity_pose,
@@ -892,7 +893,7 @@ def refine_pass(js, tree, bodies, f_ext, kin, work, mode, rhs):
         for i in range(nv):
             change = max(change, abs(z[i]))
             size = max(size, abs(x[i]))
-        if not change > 4.0 * 2.220446049250313e-16 * size:
+        if not change > 4.0 * EPS * size:
             break
         inverse_dynamics_pass(js, bodies, kin, f_ext, p, MASS, a, f, w, Ap)
         pAp = 0.0

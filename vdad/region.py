@@ -43,6 +43,7 @@ import numpy as np
 from numba import prange
 
 from ._linalg import (
+    EPS,
     cholesky,
     cholesky_solve,
     copy_pose,
@@ -1017,7 +1018,7 @@ def refine_region(nb, js, tree, bodies, groups, kin, work, region, impulse):
         for e in range(m):
             change = max(change, abs(z[dofs[e]]))
             size = max(size, abs(x[dofs[e]]))
-        if not change > 4.0 * 2.220446049250313e-16 * size:
+        if not change > 4.0 * EPS * size:
             break
         hybrid_inverse_dynamics(js, groups, region, kin, gravity, armature, p, False, impulse,
                                 a, f, tmp[7], Ap)
