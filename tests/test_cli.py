@@ -24,6 +24,18 @@ def test_run_pendulum_writes_json(tmp_path, capsys):
     assert "ms per step" in capsys.readouterr().out
 
 
+def test_run_with_implicit_damping(tmp_path, capsys):
+    out = tmp_path / "run.json"
+    assert main(["run", "falling_character", "--steps", "20", "--implicit-damping",
+                 "--json", str(out), "--no-progress"]) == 0
+    assert json.loads(out.read_text())["implicit_damping"] is True
+    assert "semi-implicit, implicit damping)" in capsys.readouterr().out
+    assert main(["run", "pendulum", "--steps", "2", "--integrator", "rk4",
+                 "--implicit-damping", "--no-progress"]) == 2
+    assert "--implicit-damping) applies to integrator 'semi-implicit'" in \
+        capsys.readouterr().err
+
+
 def test_run_times_the_steps_after_the_first(tmp_path, capsys, monkeypatch):
     """The first step loads or compiles the kernels (0.6 s to minutes): ms per step
     leaves it out and the summary reports it apart."""

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import vdad
-from vdad import Body, Joint, Model, ModelError, Pose
+from vdad import Body, InputError, Joint, Model, ModelError, Pose
 
 
 def two_links(**overrides):
@@ -115,6 +115,32 @@ def test_armature_per_dof():
                     stages=vdad.joints.revolute(armature=0.1) + vdad.joints.prismatic())]
     m = Model(bodies, joints)
     np.testing.assert_array_equal(m.armature, [0.5] * 6 + [0.2] * 3 + [0.1, 0.0])
+
+
+def test_implicit_damping_adds_dt_times_the_damping_to_the_armature():
+    """``with_implicit_damping(model, dt)``: every stage's armature grows by ``dt``
+    times its damping (a joint's, a composite joint's stages'), nothing else
+    changes; an undamped model is returned as it is."""
+    from vdad.model import with_implicit_damping
+
+    bodies = [Body("a", 1.0), Body("b", 1.0), Body("c", 1.0)]
+    joints = [Joint("ja", None, "a", "free", damping=2.0, armature=0.5),
+              Joint("jb", "a", "b", "spherical", damping=3.0),
+              Joint("jc", "b", "c", "composite",
+                    stages=vdad.joints.revolute(damping=4.0, armature=0.1)
+                    + vdad.joints.prismatic())]
+    m = Model(bodies, joints, gravity=(0.0, 1.0, -9.0), name="damped")
+    d = with_implicit_damping(m, 0.01)
+    np.testing.assert_allclose(d.armature, [0.52] * 6 + [0.03] * 3 + [0.14, 0.0],
+                               rtol=1e-15)
+    np.testing.assert_array_equal(d.stage_damping, m.stage_damping)
+    for name in ("parent", "mass", "com", "inertia", "gravity", "q_spring", "q_neutral"):
+        np.testing.assert_array_equal(getattr(d, name), getattr(m, name))
+    assert d.name == m.name and d.joint_names == m.joint_names
+    undamped = Model(*two_links())
+    assert with_implicit_damping(undamped, 0.01) is undamped
+    with pytest.raises(InputError, match="dt must be"):
+        with_implicit_damping(m, 0.0)
 
 
 def test_joint_limits_are_normalised():

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 from numba.core.registry import CPUDispatcher
-from strategies import random_chain, random_configuration, with_armature
+from strategies import random_chain, random_configuration, random_state, random_tree, with_armature
 
 import vdad
 import vdad.dca
@@ -310,6 +310,70 @@ def test_diverging_run_stops_with_the_joint(options):
     with pytest.raises(SimulationError, match="step 1 .*joint 'joint1' turns 4 rad in one "
                                               "step .*diverging; reduce the time step"):
         sim.step()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("options", [{}, {"method": "adaptive", "threshold": 0.0},
+                                     {"controller": lambda t, q, qd: np.zeros(len(qd))}])
+def test_implicit_damping_is_backward_euler_in_the_dampers(seed, options):
+    """``implicit_damping=True``: a semi-implicit Euler step solves ``(M + dt D)
+    qdd = -bias`` (the CRBA and RNEA of vdad.reference, the bias with the
+    dampers' ``-D qd``), ``D`` the dampers per dof, on a random tree of every
+    joint kind with springs and dampers (composite stages too): in compiled
+    steps, adaptive ones and the Python step."""
+    from vdad.reference import bias_forces, crba
+
+    model = random_tree(seed, composite=True)
+    q, qd, _, _ = random_state(model, seed)
+    dt = 0.05
+    sim = vdad.Simulator(model, q, qd, dt=dt, implicit_damping=True, **options)
+    nv = np.array(vdad.joints.STAGE_NV)[model.stage_kind]
+    D = np.repeat(model.stage_damping, nv)
+    A = crba(model, sim.q) + dt * np.diag(D)
+    assert dt * D.max() > 0.01 * np.diag(A).min()            # the dampers matter
+    expected = qd + dt * np.linalg.solve(A, -bias_forces(model, sim.q, qd))
+    sim.step()
+    tol = 100 * np.linalg.cond(A) * np.finfo(float).eps * max(1.0, np.abs(expected).max())
+    np.testing.assert_allclose(sim.qd, expected, rtol=0, atol=tol)
+    explicit = vdad.Simulator(model, q, qd, dt=dt, **options).step()
+    assert np.abs(explicit.qd - sim.qd).max() > 1e3 * tol   # not the explicit step
+
+
+def test_implicit_damping_holds_a_damper_that_explicit_euler_cannot():
+    """A body spinning about its axis under a damper ``d`` with ``dt d / I = 10``:
+    explicit Euler multiplies its rate by ``1 - 10`` a step and diverges; with
+    ``implicit_damping`` each step divides it by ``1 + 10``, backward Euler's
+    exact decay; the falling character with ``joint_damping`` 60 (its clavicle
+    diverges at step 130 explicitly, docs/adaptive.md) completes 1000 steps."""
+    from vdad.errors import SimulationError
+    from vdad.scenes import falling_character
+
+    model = vdad.Model([vdad.Body("wheel", 1.0, inertia=(1.0, 1.0, 2.0))],
+                       [vdad.Joint("axle", None, "wheel", "revolute", damping=2e4)],
+                       gravity=(0.0, 0.0, 0.0))
+    sim = vdad.Simulator(model, qd0=[1.0], dt=1e-3, implicit_damping=True).step(10)
+    np.testing.assert_allclose(sim.qd, [11.0 ** -10], rtol=1e-12)
+    with pytest.raises(SimulationError, match="joint 'axle'"):
+        vdad.Simulator(model, qd0=[1.0], dt=1e-3).step(10)
+    scene = falling_character(joint_damping=60.0)
+    with pytest.raises(SimulationError, match="lclavicle"):
+        scene.simulator().step(1000)
+    for method in ("dca", "view-bvh"):
+        sim = scene.simulator(method=method, implicit_damping=True).step(1000)
+        assert np.all(np.isfinite(sim.qd))
+
+
+def test_implicit_damping_takes_a_flag_and_euler():
+    scene = pendulum(n_bodies=3)
+    with pytest.raises(vdad.InputError, match="implicit_damping must be True or False"):
+        scene.simulator(implicit_damping="yes")
+    for integrator in ("rk4", "symplectic"):
+        with pytest.raises(vdad.InputError, match=f"implicit_damping=True .* applies to "
+                                                   f"integrator 'semi-implicit' .*not to "
+                                                   f"'{integrator}'"):
+            scene.simulator(integrator=integrator, implicit_damping=True)
+    sim = scene.simulator()
+    assert sim.dynamics is sim.model and not sim.implicit_damping
 
 
 @pytest.mark.parametrize("method", ["dca", "adaptive"])

@@ -180,6 +180,8 @@ def test_reference_simulator_copies_the_initial_state(scene):
     sim.step()
     with pytest.raises(InputError, match="same initial state"):
         reference_simulator(sim)
+    damped = scene.simulator(method="adaptive", threshold=1e-3, implicit_damping=True)
+    assert reference_simulator(damped).implicit_damping
 
 
 def test_trajectory_round_trip_and_frame_checks(scene, tmp_path):

@@ -134,6 +134,10 @@ def _method_options(parser):
                         help="time integrator (default semi-implicit Euler; symplectic: "
                         "symplectic Euler in momentum form, bounded energy, for --method dca "
                         "on hinges and slides, docs/accuracy.md)")
+    parser.add_argument("--implicit-damping", action="store_true",
+                        help="integrate the joint dampers implicitly (semi-implicit Euler "
+                        "only): (M + dt D) qdd = tau - D qd - ..., stable for any damping "
+                        "(MuJoCo's implicit damping; docs/joints.md)")
     adaptive = parser.add_argument_group(
         "adaptive dynamics", "with --method adaptive, view-bvh or view-oq: --threshold or "
         "--budget (view methods: in pixels times displacement per step; default: the "
@@ -350,7 +354,8 @@ def make_simulator(scene, args):
     (:func:`in_cli_terms`)."""
     options = {k: getattr(args, k) for k in SIMULATOR_OPTIONS if getattr(args, k) is not None}
     try:
-        return scene.simulator(method=args.method, integrator=args.integrator, **options)
+        return scene.simulator(method=args.method, integrator=args.integrator,
+                               implicit_damping=args.implicit_damping, **options)
     except InputError as exc:
         raise type(exc)(in_cli_terms(str(exc))) from exc
 
@@ -403,6 +408,7 @@ def run_scene(args):
     first = timer.frames[0][0]
     summary = {
         "scene": scene.name, "method": args.method, "integrator": args.integrator,
+        "implicit_damping": args.implicit_damping,
         "bodies": scene.model.nb, "joints": scene.model.nb, "dofs": scene.model.nv,
         "steps": args.steps, "dt": sim.dt, "simulated_time": sim.t,
         "ms_per_step": timer.ms_per_step, "first_step_s": first, "final_q": sim.q.tolist(),
@@ -419,7 +425,9 @@ def run_scene(args):
     slow = (f" after a first step of {first:.2f} s (loading or compiling the kernels)"
             if args.steps > 1 and first > 0.1 else "")
     print(f"{scene.description}: {args.steps} steps of {sim.dt} s with {args.method} "
-          f"({shown + '; ' if shown else ''}{args.integrator}), {summary['ms_per_step']:.3f} "
+          f"({shown + '; ' if shown else ''}{args.integrator}"
+          f"{', implicit damping' if args.implicit_damping else ''}), "
+          f"{summary['ms_per_step']:.3f} "
           f"ms per step{slow}{active}"
           + (f"; summary in {args.json}" if args.json else ""))
     return 0

@@ -12,7 +12,7 @@ Gravity and external wrenches enter as forces on bodies (theory §1).
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -498,6 +498,29 @@ class Model(Immutable):
     def __repr__(self):
         return (f"Model({self.name!r}, bodies={self.nb}, nq={self.nq}, nv={self.nv}, "
                 f"roots={int(np.sum(self.parent < 0))})")
+
+
+def with_implicit_damping(model, dt):
+    """The model whose semi-implicit Euler step integrates its joint dampers
+    implicitly (MuJoCo's implicit damping in its Euler integrator;
+    ``docs/joints.md``, "Implicit damping"): every damped stage carries
+    ``dt * damping`` more armature. A step of ``qd+ = qd + dt qdd`` with ``(M +
+    dt D) qdd = tau - D qd - ...`` is backward Euler in the damper's velocity,
+    ``M (qd+ - qd) = dt (... - D qd+)``, stable and dissipative for any ``D >=
+    0`` and ``dt``; every other force stays as explicit as before. ``model``
+    itself where no stage is damped. The returned model is for the step's
+    solve only: its energy counts the added armature."""
+    check_model(model)
+    dt = float(check_real("dt", dt, positive=True))
+    if not np.any(model.stage_damping):
+        return model
+
+    def heavier(part):
+        return replace(part, armature=part.armature + dt * part.damping)
+
+    joints = [replace(jt, stages=tuple(heavier(s) for s in jt.stages))
+              if jt.kind == "composite" else heavier(jt) for jt in model.joints]
+    return Model(model.bodies, joints, model.gravity, model.q_spring, model.name)
 
 
 def check_model(model):

@@ -23,7 +23,14 @@ from .adaptive import AdaptiveDynamics, History, rotational_dofs
 from .assembly import check_tree
 from .baselines import DistanceLOD, Sleeping, articulated_bodies, root_last_tree
 from .camera import camera_at, check_path
-from .checks import check_callable, check_count, check_real, check_vector, check_wrenches
+from .checks import (
+    check_callable,
+    check_count,
+    check_flag,
+    check_real,
+    check_vector,
+    check_wrenches,
+)
 from .dynamics import default_tree, forward_dynamics_unchecked
 from .environment import check_environment
 from .errors import InputError, SimulationError
@@ -39,7 +46,7 @@ from .integrators import (
     step_scratch,
 )
 from .kinematics import gimbal_lock, plan, world_poses
-from .model import body_indices, check_configuration, check_model
+from .model import body_indices, check_configuration, check_model, with_implicit_damping
 
 METHODS = ("dca", "adaptive", "view-bvh", "view-oq", "lod-distance", "sleeping")
 #: the compiled step loop's scheme of each integrator (:func:`~vdad.integrators.dca_steps`)
@@ -227,6 +234,12 @@ class Simulator:
     ``"symplectic"``: symplectic Euler in momentum form, whose energy error stays
     bounded (``docs/accuracy.md``; the DCA method on hinges and slides, with vdad's
     own force elements).
+    implicit_damping: integrate the joint dampers implicitly (semi-implicit Euler
+    only): the step solves ``(M + dt D) qdd = tau - D qd - ...``, MuJoCo's
+    implicit damping, stable for any damping and time step where explicit
+    dampers diverge past ``dt d / I ~ 2`` (``docs/joints.md``, "Implicit
+    damping"); the step's model is :attr:`dynamics` (:func:`~vdad.model.
+    with_implicit_damping`), and :meth:`accelerations` are the step's.
     tree: assembly tree (default: balanced; for the adaptive methods on a model
     with a floating base, and for the baselines, the balanced tree with every
     joint to the world assembled last, :func:`~vdad.baselines.root_last_tree`:
@@ -244,7 +257,7 @@ class Simulator:
 
     def __init__(self, model, q0=None, qd0=None, dt=1e-3, method="dca",
                  integrator="semi-implicit", tree=None, controller=None, external=None,
-                 camera=None, environment=None, **adaptive_options):
+                 camera=None, environment=None, implicit_damping=False, **adaptive_options):
         if method not in METHODS:
             raise InputError(f"unknown method {method!r}; choose one of {METHODS}")
         self.model = check_model(model)
@@ -256,6 +269,13 @@ class Simulator:
         self.method = method
         self.integrator_name = integrator
         self._integrate = get_integrator(integrator)
+        self.implicit_damping = check_flag("implicit_damping", implicit_damping)
+        if self.implicit_damping and integrator != "semi-implicit":
+            raise InputError(f"implicit_damping=True (--implicit-damping) applies to integrator "
+                             f"'semi-implicit' "
+                             f"(Euler), not to {integrator!r}")
+        # the model the steps solve: the model itself, or with dt D in its armature
+        self.dynamics = with_implicit_damping(model, self.dt) if self.implicit_damping else model
         if tree is None:
             floating = bool(np.any((model.parent < 0) & (model.nv_joint == 6)))
             tree = (root_last_tree(model) if method in BASELINES
@@ -293,7 +313,8 @@ class Simulator:
                 adaptive_options["coverage"] = DistanceLOD(self.tree, camera, **view)
             elif method == "sleeping":
                 adaptive_options["coverage"] = Sleeping(self.tree, **view)
-            self.adaptive = AdaptiveDynamics(model, self.dt, self.tree, **adaptive_options)
+            self.adaptive = AdaptiveDynamics(self.dynamics, self.dt, self.tree,
+                                             **adaptive_options)
         if integrator == "symplectic":
             self._check_symplectic()
 
@@ -339,7 +360,7 @@ class Simulator:
             "controller(t, q, qd)", self.controller(t, q, qd), self.model.nv)
         f_ext = None if self.external is None else check_wrenches(
             self.model, self.external(t, q, qd), "external(t, q, qd)")
-        return forward_dynamics_unchecked(self.model, q, qd, tau, f_ext, self.data)
+        return forward_dynamics_unchecked(self.dynamics, q, qd, tau, f_ext, self.data)
 
     def step(self, n=1):
         """Advance ``n`` steps (a whole number >= 0); returns ``self``. With
@@ -457,8 +478,8 @@ class Simulator:
         q, qd = self.q.copy(), self.qd.copy()
         constants, tables = self._packs
         if constants is None:
-            constants = pack((plan(self.model).arrays, self.data.layout,
-                              dca.body_arrays(self.model), dca.inert_arrays(self.model),
+            constants = pack((plan(self.dynamics).arrays, self.data.layout,
+                              dca.body_arrays(self.dynamics), dca.inert_arrays(self.dynamics),
                               self._rotational, self.data.kin.arrays, self.data.arrays,
                               self.halvings,
                               step_scratch(self.model.nq, self.model.nv, self.model.nb)))

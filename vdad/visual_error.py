@@ -70,15 +70,16 @@ def _cause(exc):
 def reference_simulator(sim) -> Simulator:
     """Kim 2008 §3.1: the fully simulated run that a simplified one is judged
     against: a ``method="dca"`` :class:`~vdad.Simulator` with ``sim``'s model,
-    initial state (copies), time step, integrator, assembly tree, forces, camera
-    and environment. ``sim`` must not have stepped yet."""
+    initial state (copies), time step, integrator and damping scheme, assembly
+    tree, forces, camera and environment. ``sim`` must not have stepped yet."""
     _check_simulator(sim)
     if sim.step_count != 0:
         raise InputError(f"sim has already taken {sim.step_count} steps; the reference must "
                          f"start from the same initial state: build it before stepping")
     ref = Simulator(sim.model, sim.q, sim.qd, dt=sim.dt, method="dca",
                     integrator=sim.integrator_name, tree=sim.tree, controller=sim.controller,
-                    external=sim.external, camera=sim.camera, environment=sim.environment)
+                    external=sim.external, camera=sim.camera, environment=sim.environment,
+                    implicit_damping=sim.implicit_damping)
     # bit for bit: normalising the configuration again may move a quaternion by an ulp
     ref.q, ref.qd = sim.q.copy(), sim.qd.copy()
     return ref
