@@ -272,8 +272,7 @@ class Simulator:
         self.implicit_damping = check_flag("implicit_damping", implicit_damping)
         if self.implicit_damping and integrator != "semi-implicit":
             raise InputError(f"implicit_damping=True (--implicit-damping) applies to integrator "
-                             f"'semi-implicit' "
-                             f"(Euler), not to {integrator!r}")
+                             f"'semi-implicit' (Euler), not to {integrator!r}")
         # the model the steps solve: the model itself, or with dt D in its armature
         self.dynamics = with_implicit_damping(model, self.dt) if self.implicit_damping else model
         if tree is None:
