@@ -278,6 +278,40 @@ def test_the_history_holds_every_steps_stats_in_order():
     assert all(st.times["steps"] == 0 and st.times["dynamics"] > 0 for st in h[25:28])
 
 
+def test_the_look_ahead_skips_front_nodes_within_their_dwell():
+    """Threshold mode: a front node whose parent was descended into is looked
+    ahead only once it has kept its state ``dwell`` steps (``update_region`` would
+    not release a younger one); ``la`` is NaN on the younger ones, a number on the
+    others, and the step's look-ahead count is the number of the others (checked
+    on the steps that lock no node after the look-ahead). Budget mode looks ahead
+    every such node, young or not (its heap ranks them)."""
+    for options, dwell in (({"threshold": 0.1}, 30), ({"budget": 6}, 30)):
+        sim = pendulum(n_bodies=20).simulator(
+            method="view-bvh" if "threshold" in options else "adaptive", dwell=dwell,
+            **options)
+        sim.adaptive_loop = False
+        ad = sim.adaptive
+        update, seen = ad.update, {"young": 0, "old": 0}
+
+        def checked_update(q, qd, ad=ad, update=update, seen=seen, dwell=dwell,
+                           budget="budget" in options):
+            r, nb, step = ad.region, ad.model.nb, ad.step_count + 1
+            if ad.stats.rigidified:          # locked after the look-ahead: another front
+                return update(q, qd)
+            F = [n for n in ad.front if n >= nb and r.desc[ad.tree.up[n]]]
+            young = [n for n in F if step - r.since[n] < dwell and not budget]
+            assert np.all(np.isnan(r.la[young]))
+            old = sorted(set(F) - set(young))
+            assert np.all(np.isfinite(r.la[old])) and ad.stats.lookahead == len(old)
+            seen["young"] += len(young)
+            seen["old"] += len(old)
+            return update(q, qd)
+
+        ad.update = checked_update
+        sim.step(300)
+        assert seen["old"] > 0 and (seen["young"] > 0) != ("budget" in options), seen
+
+
 @pytest.mark.parametrize("loop", [True, False])
 def test_the_look_ahead_runs_every_lookahead_every_steps(loop):
     """``lookahead_every=k``: only the steps whose number is a multiple of ``k``
@@ -917,12 +951,13 @@ def _released_at_rest(model, seed):
     """A state of :func:`_floating_pairs` in which every second joint is at rest,
     with joint forces on it, and those joints' nodes of the tree that assembles the
     free joints last (``baselines.root_last_tree``), locked: each such node is on
-    the front, its only port the free joint, which transmits no wrench. Returns
-    ``(ad, q, qd, tau, {node: dofs of its joint})``."""
+    the front, its only port the free joint, which transmits no wrench (dwell 0:
+    they are looked ahead at once). Returns ``(ad, q, qd, tau, {node: dofs of its
+    joint})``."""
     q, qd, _, _ = random_state(model, seed)
     tau = np.zeros(model.nv)
     released = {}
-    ad = AdaptiveDynamics(model, 1e-3, root_last_tree(model), threshold=0.0)
+    ad = AdaptiveDynamics(model, 1e-3, root_last_tree(model), threshold=0.0, dwell=0)
     for j in range(1, model.nb, 2):
         d = joint_dofs(model, [j])
         qd[d] = 0.0

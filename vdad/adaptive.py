@@ -429,7 +429,8 @@ class AdaptiveDynamics:
     @property
     def la(self):
         """Look-ahead metric of each front node whose parent was descended into
-        (NaN for the others)."""
+        and, in threshold mode, that kept its state ``dwell`` steps (NaN for the
+        others)."""
         return self.region.la
 
     @property

@@ -591,7 +591,8 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
             direct_metric(budget, locking, step, dwell, dt, keep, nb, js, tree, up, qdd,
                           region)
         if lookahead_on:
-            lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, region)
+            lookahead_pass(budget, step, dwell, nb, js, tree, bodies, groups, top, up, q, tau_in,
+                           kin, work, region)
         else:                                           # no front node competes (budget)
             for e in range(n_visit):
                 n = visit[e]
@@ -763,18 +764,21 @@ def direct_metric(budget, locking, step, dwell, dt, keep, nb, js, tree, up, qdd,
 
 
 @pass_kernel
-def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, region):
+def lookahead_pass(budget, step, dwell, nb, js, tree, bodies, groups, top, up, q, tau_in, kin,
+                   work, region):
     """The one-level look-ahead (``docs/adaptive.md``) of every internal front node
     ``F`` whose parent was descended into: ``la[F]``, the metric of its joint ``j``
     released at rest, its children ``A`` and ``B`` held rigid, for the wrenches on
     ``F``'s ports known from the top-down pass (:func:`release_acceleration`).
-    Writes only rows that rigid joints own (and restores ``qdd = 0`` on ``j``);
-    ``la`` is NaN on the other front nodes."""
+    In threshold mode (``budget`` 0) a front node that changed state less than
+    ``dwell`` steps before ``step`` is not looked ahead: :func:`update_region`
+    would not release it. Writes only rows that rigid joints own (and restores
+    ``qdd = 0`` on ``j``); ``la`` is NaN on the other front nodes."""
     f_J, qdd, tau, tmp = work[6], work[7], work[8], work[11]
     joint, v_start, nv_joint = tree[2], js[6], js[7]
     R_rel, p_rel, S, T, W, R, pw, v, c_J, R3, v6, kwork = kin
-    active, desc, visit, counts, la, wA = (region[0], region[2], region[4], region[10],
-                                           region[16], region[18])
+    active, desc, since, visit, counts, la, wA = (region[0], region[2], region[3], region[4],
+                                                  region[10], region[16], region[18])
     grounded = groups[4]
     stage0, n_stages = js[4], js[5]
     Rw, vw = tmp[6, :3, :3], tmp[6, 3]
@@ -783,7 +787,7 @@ def lookahead_pass(nb, js, tree, bodies, groups, top, up, q, tau_in, kin, work, 
         F = visit[e]
         if F < nb or active[F]:
             continue
-        if not desc[up[F]]:
+        if not desc[up[F]] or (budget == 0 and step - since[F] < dwell):
             la[F] = np.nan
             continue
         counts[LOOKAHEAD] += 1
