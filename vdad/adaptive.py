@@ -574,13 +574,14 @@ class AdaptiveDynamics:
                        self._zero_tau if tau is None else as_input(tau))
         return self.data.qdd.copy()
 
-    def _evaluate(self, first, q, qd, tau, placed=False):
+    def _evaluate(self, first, q, qd, tau, placed=False, reuse=False):
         """The compiled evaluation (``vdad.region.evaluate``; ``placed``: ``kin``
-        holds the active joints' kinematics at ``(q, qd)``); an InputError naming
-        the joint if ``qdd`` is not finite."""
+        holds the active joints' kinematics at ``(q, qd)``; ``reuse``: the blocks of
+        the last evaluation, at the same ``q``, hold where the region did not change
+        this step); an InputError naming the joint if ``qdd`` is not finite."""
         budget = 0 if self.budget is None else self.budget
         with compiling(evaluate):
-            ok = evaluate(first, self.predictive, budget, False, placed,
+            ok = evaluate(first, self.predictive, budget, False, placed, reuse,
                           self._lookahead_at(self.step_count + 1),
                           self.drop == "lock", self.step_count + 1, self.dwell, self.dt,
                           self._keep, self.kappa, self.model.nb, *self._args()[:4], self._top,
@@ -726,10 +727,10 @@ class AdaptiveDynamics:
             t0 = time.perf_counter()
             with compiling(lock_pruned):
                 nc = lock_pruned(self.model.nb, self.groups.up, r.arrays, self._stack)
-            st.rigidified += self._change(nc, 0, self.step_count + 1, q, qd)[0]
+            st.rigidified += self._change(nc, 0, self.step_count + 1, q, qd, reuse=True)[0]
             st.times["region"] += time.perf_counter() - t0
             st.active_joints, st.front = int(r.counts[N_JOINTS]), int(r.counts[FRONT])
-            self._stage(st, False, t, q, qd)
+            self._stage(st, False, t, q, qd, reuse=True)
         t0, inner = time.perf_counter(), st.times["forces"] + st.times["dynamics"]
         if integrate is rk4:
             qs, vs = q.copy(), qd.copy()
@@ -838,12 +839,12 @@ class AdaptiveDynamics:
             self.groups.any_force = bool(self.groups.f_ext.any())
         return done, status, last[0], last[1]
 
-    def _change(self, nc, nr, step, q, qd):
+    def _change(self, nc, nr, step, q, qd, reuse=False):
         """Rigidify the ``nc`` candidates and release the ``nr`` front nodes that
         ``update_region`` or ``lock_pruned`` left in the stack, with the locking
         impulse on ``qd`` under the momentum policy (``vdad.region.change_region``,
-        then ``evaluate`` with ``impulse``).
-        Returns (nodes rigidified, nodes released)."""
+        then ``evaluate`` with ``impulse``; ``reuse``: the step's evaluation before
+        the change was at this ``q``). Returns (nodes rigidified, nodes released)."""
         if nc + nr == 0:
             return 0, 0
         r, momentum = self.region, self.policy == "momentum"
@@ -853,7 +854,7 @@ class AdaptiveDynamics:
                           self.kin.arrays, r.arrays, self._stack)
         if nc and momentum:                     # the locking impulse on qd
             with compiling(evaluate):
-                evaluate(False, self.predictive, 0, True, False, False, False, step, 0,
+                evaluate(False, self.predictive, 0, True, False, reuse, False, False, step, 0,
                          self.dt, 0.0, 1.0, self.model.nb, *self._args()[:4], self._top,
                          self.groups.up, self._roots, q, qd, qd, self.kin.arrays,
                          self.data.arrays, r.arrays)
@@ -878,8 +879,9 @@ class AdaptiveDynamics:
         return self.coverage is not None and not getattr(self.coverage, "covers_every_node",
                                                          False)
 
-    def _stage(self, st, first, t, q, qd, k=0):
-        """Evaluation ``k`` of a step: forces (:meth:`_forces`), then the passes."""
+    def _stage(self, st, first, t, q, qd, k=0, reuse=False):
+        """Evaluation ``k`` of a step: forces (:meth:`_forces`), then the passes
+        (``reuse``: :meth:`_evaluate`'s)."""
         t0 = time.perf_counter()
         tau, f_ext = self._forces(t, q, qd, k)
         st.force_update += self.groups.update_forces(f_ext, self.active)
@@ -891,7 +893,7 @@ class AdaptiveDynamics:
             with compiling(take_kinematics):
                 placed = take_kinematics(plan(self.model).arrays, self.region.arrays, fresh,
                                          fkin.arrays, self.kin.arrays)
-        self._evaluate(first, q, qd, self._zero_tau if tau is None else tau, placed)
+        self._evaluate(first, q, qd, self._zero_tau if tau is None else tau, placed, reuse)
         st.times["dynamics"] += time.perf_counter() - t1
 
     def _checked_coverage(self, t, q):

@@ -803,21 +803,34 @@ def solve_node(i, nb, tree, js, kin, armature, tau, G, Y, WtWm, PF, beta, gamma,
 # --- refinement (docs/accuracy.md) ------------------------------------------------------
 
 @inlined
-def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, t):
-    """(T8)-(T9) of internal node ``C = nb + i`` for joint forces ``tau`` alone (no
-    velocity, no known wrenches): ``gamma = b^B_jB - b^A_jA`` and ``beta_C`` by
-    :func:`joint_beta`, from what :func:`joint_node` kept at this configuration
-    (``W^T W_m``, ``(P F)^T``, ``Y``). ``t`` (6,): scratch."""
+def joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, velocity, t):
+    """(T8)-(T9) of internal node ``C = nb + i`` from what :func:`joint_node` kept at
+    this configuration (``W^T W_m``, ``(P F)^T``, ``Y``): ``gamma = b^B_jB - c_J -
+    b^A_jA`` and ``beta_C`` by :func:`joint_beta`; without ``velocity``, for joint
+    forces ``tau`` alone (no ``c_J``; the leaves' ``b`` without known wrenches).
+    ``t`` (6,): scratch."""
     (left, right, joint, port_A, port_B, n_ports, pair_base, slot_base, slot_joint,
      slot_side, slot_child, slot_index, slot_sign, post, segments) = tree
-    v_start, nv_joint, subspace = js[6], js[7], js[15]
+    v_start, nv_joint, subspace, c_J = js[6], js[7], js[15], kin[8]
     A, B, j = left[i], right[i], joint[i]
     v0, d, Wj, gj = v_start[j], nv_joint[j], kin[4][subspace[j]], gamma[i]
-    for r in range(6):                                  # (T8) without c_J
-        gj[r] = b[pair_base[B] + port_B[i], r]
+    for r in range(6):                                  # (T8)
+        gj[r] = b[pair_base[B] + port_B[i], r] - (c_J[j, r] if velocity else 0.0)
         if A >= 0:
             gj[r] -= b[pair_base[A] + port_A[i], r]
     joint_beta(Y[i], Wj, WtWm, PF, v0, d, has_armature(armature, v0, d), tau, gj, beta[i], t)
+
+
+@inlined
+def node_vectors(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, G, velocity,
+                 t):
+    """The vector parts of :func:`assemble_node` for internal node ``C = nb + i`` at
+    the configuration of its last assembly, whose ``Y``, ``W^T W_m``, ``(P F)^T``
+    and ``G_a`` they reuse ((T7), (T10)-(T11) depend on the configuration alone):
+    (T8)-(T9) by :func:`joint_rhs`, (T12) by :func:`port_vectors`. ``t`` (6,):
+    scratch."""
+    joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma, velocity, t)
+    port_vectors(i, nb, tree, b, beta[i], G)                     # (T12)
 
 
 @pass_kernel
@@ -825,8 +838,8 @@ def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma,
                tmp, order, n, assembled):
     """``qdd = M^-1 tau`` by the DCA at the configuration of its last evaluation,
     whose ``G_a``, ``Y``, ``W^T W_m``, ``(P F)^T`` it reuses: the vector parts
-    alone ((R3) of ``docs/accuracy.md``), leaves without known wrenches, (T8)-(T9)
-    by :func:`joint_rhs`, (T12) by :func:`port_vectors`, then :func:`solve_node`;
+    alone ((R3) of ``docs/accuracy.md``), leaves without known wrenches, by
+    :func:`node_vectors` without velocity, then :func:`solve_node`;
     over the nodes ``order[:n]`` in depth-first post-order, of which the internal
     nodes marked in ``assembled`` (every internal node where it is empty) were
     assembled and the others are leaves (on adaptive dynamics' region: its hybrid,
@@ -839,10 +852,8 @@ def rhs_passes(nb, js, tree, kin, armature, tau, G, b, Y, WtWm, PF, beta, gamma,
                 for r in range(6):
                     b[pair_base[node] + a, r] = 0.0
             continue
-        i = node - nb
-        joint_rhs(i, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma,
-                  tmp[7, 2])
-        port_vectors(i, nb, tree, b, beta[i], G)                   # (T12)
+        node_vectors(node - nb, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma,
+                     G, False, tmp[7, 2])
     for k in range(n - 1, -1, -1):
         node = order[k]
         if node >= nb and (assembled.shape[0] == 0 or assembled[node]):

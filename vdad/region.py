@@ -69,6 +69,7 @@ from .dca import (
     copy_block,
     in_parallel,
     leaf_blocks,
+    node_vectors,
     pair_offset,
     rhs_passes,
     solve_node,
@@ -522,9 +523,9 @@ def take_kinematics(js, region, fresh, fkin, kin):
 
 
 @pass_kernel
-def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, step, dwell, dt,
-             keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau_in, kin, work,
-             region):
+def evaluate(first, predictive, budget, impulse, placed, reuse, lookahead_on, locking, step, dwell,
+             dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q, qd, tau_in, kin,
+             work, region):
     """One evaluation of adaptive dynamics at ``(q, qd)`` (the module's steps 1-4):
     ``qdd`` of the active joints in ``work`` (zero where they coast). ``first``: the
     step's first evaluation takes the decisions (metric coefficients, pruning,
@@ -536,10 +537,14 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
     ``tau = 0``, every active node solved), whose result are the new ``qd`` of the
     active joints. ``placed``: ``kin`` holds the active joints' kinematics at ``(q,
     qd)`` already (:func:`cap_energy` of the step before computed them).
-    ``lookahead_on``: the step's first evaluation takes the look-ahead
-    (:func:`lookahead_pass`); without it the front's scores ``la`` are NaN. On a
-    model with raised leaves (``bodies[12]``, :func:`~vdad.dca.body_arrays`) the
-    groups' leaves are raised and the accelerations refined on the hybrid
+    ``reuse``: the last evaluation was at the same ``q``, and the region has
+    changed since only by nodes whose state changed at ``step``
+    (:func:`region_passes` keeps the blocks of the others: the locking impulse of
+    ``drop="lock"`` and the evaluation after it). ``lookahead_on``: the step's
+    first evaluation takes the look-ahead (:func:`lookahead_pass`); without it the
+    front's scores ``la`` are NaN. On a model with raised leaves (``bodies[12]``,
+    :func:`~vdad.dca.body_arrays`) the groups' leaves are raised and the
+    accelerations refined on the hybrid
     (:func:`refine_region`, (R6) of ``docs/accuracy.md``) before the metric is
     summed from them (the caller takes ``predictive`` off there). Returns whether
     ``qdd`` is finite."""
@@ -569,11 +574,12 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
         velocity_metric(nb, js, tree, qd, region)
     n_visit = counts[N_VISIT]
     if in_parallel(nb, tree[14]):
-        solved = region_forest(first, predictive, budget, impulse, locking, step, dwell, dt,
-                               keep, nb, js, tree, bodies, groups, top, kin, tau, work, region)
+        solved = region_forest(first, predictive, budget, impulse, reuse, locking, step, dwell,
+                               dt, keep, nb, js, tree, bodies, groups, top, kin, tau, work,
+                               region)
     else:
-        solved = region_passes(0, n_visit, first, predictive, budget, impulse, locking, step,
-                               dwell, dt, keep, nb, js, tree, bodies, groups, top, kin, tau,
+        solved = region_passes(0, n_visit, first, predictive, budget, impulse, reuse, locking,
+                               step, dwell, dt, keep, nb, js, tree, bodies, groups, top, kin, tau,
                                work, region, X, GY, tmp, H, M, mt)
     if bodies[12] != 0:                                 # (R6): leaves raised
         refine_region(nb, js, tree, bodies, groups, kin, work, region, impulse)
@@ -625,21 +631,32 @@ def evaluate(first, predictive, budget, impulse, placed, lookahead_on, locking, 
 
 
 @inlined
-def region_passes(lo, hi, first, predictive, budget, impulse, locking, step, dwell, dt, keep, nb,
-                  js, tree, bodies, groups, top, kin, tau, work, region, X, GY, tmp, H, M, mt):
+def region_passes(lo, hi, first, predictive, budget, impulse, reuse, locking, step, dwell, dt,
+                  keep, nb, js, tree, bodies, groups, top, kin, tau, work, region, X, GY, tmp, H,
+                  M, mt):
     """:func:`evaluate`'s steps 2-3 over the entries ``visit[lo:hi]``, whole
     subtrees of the active region: the front leaves and the bottom-up pass (T6)-(T12)
     with, on a step's first evaluation, the metric coefficients (T16)-(T18); then
-    the top-down pass (T10), (T13), pruned. ``X``, ``GY``, ``tmp``, ``H``, ``M``,
-    ``mt``: scratch. Returns the nodes solved."""
+    the top-down pass (T10), (T13), pruned. With ``reuse`` (not on a first
+    evaluation), an active node none of whose subtree's nodes changed state at
+    ``step`` keeps the blocks of its last assembly, at the same configuration, and
+    takes the vector parts alone (:func:`~vdad.dca.node_vectors`). ``X``, ``GY``,
+    ``tmp``, ``H``, ``M``, ``mt``: scratch. Returns the nodes solved."""
     Phi, b, Y, WtWm, beta, gamma, f_J, qdd, _, _, _, _, PF = work[:13]
     G = work[16]
     (active, pinned, desc, since, visit, size, joints, par, R0, p0, counts, Psi, p, eta, A, V,
      la, N_M, wA, wV, h) = region[:21]
     armature, gravity = bodies[11], bodies[4]
+    reuse = reuse and not first
+    changed = lo - 1                                    # the last entry that changed at step
     for e in range(lo, hi):                             # bottom-up: front leaves, (T6)-(T12)
         n = visit[e]
-        if n >= nb and active[n]:
+        if since[n] == step:
+            changed = e
+        if n >= nb and active[n] and reuse and changed < e - size[e] + 1:
+            node_vectors(n - nb, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma,
+                         G, True, tmp[7, 2])
+        elif n >= nb and active[n]:
             assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta,
                           gamma, G, GY, tmp)
             if first and predictive and not impulse:
@@ -684,8 +701,8 @@ FOREST_CHUNKS = 16
 
 
 @parallel_kernel
-def region_forest(first, predictive, budget, impulse, locking, step, dwell, dt, keep, nb, js,
-                  tree, bodies, groups, top, kin, tau, work, region):
+def region_forest(first, predictive, budget, impulse, reuse, locking, step, dwell, dt, keep, nb,
+                  js, tree, bodies, groups, top, kin, tau, work, region):
     """:func:`region_passes` of a forest's root subtrees in parallel (numba threads,
     as :func:`vdad.dca.forest_passes`): the visit list holds each root's subtree in
     turn, and each of :data:`FOREST_CHUNKS` chunks takes every ``T``-th of them with
@@ -707,22 +724,22 @@ def region_forest(first, predictive, budget, impulse, locking, step, dwell, dt, 
         H, M, mt = np.empty_like(region[23]), np.empty_like(region[24]), np.empty_like(region[25])
         for k in range(t, n_roots, T):
             solved[t] += subtree_passes(hi[k + 1], hi[k], first, predictive, budget, impulse,
-                                        locking, step, dwell, dt, keep, nb, js, tree, bodies,
-                                        groups, top, kin, tau, work, region, X, GY, tmp, H, M,
-                                        mt)
+                                        reuse, locking, step, dwell, dt, keep, nb, js, tree,
+                                        bodies, groups, top, kin, tau, work, region, X, GY, tmp,
+                                        H, M, mt)
     return solved.sum()
 
 
 @pass_kernel
-def subtree_passes(lo, hi, first, predictive, budget, impulse, locking, step, dwell, dt, keep,
-                   nb, js, tree, bodies, groups, top, kin, tau, work, region, X, GY, tmp, H, M,
-                   mt):
+def subtree_passes(lo, hi, first, predictive, budget, impulse, reuse, locking, step, dwell, dt,
+                   keep, nb, js, tree, bodies, groups, top, kin, tau, work, region, X, GY, tmp, H,
+                   M, mt):
     """:func:`region_passes` compiled on its own, as a call from the threads of
     :func:`region_forest` (as :func:`vdad.dca.subtree_passes` is): inlined into the
     parallel loop, numba's parallel passes took 15 minutes more to compile it."""
-    return region_passes(lo, hi, first, predictive, budget, impulse, locking, step, dwell, dt,
-                         keep, nb, js, tree, bodies, groups, top, kin, tau, work, region, X, GY,
-                         tmp, H, M, mt)
+    return region_passes(lo, hi, first, predictive, budget, impulse, reuse, locking, step, dwell,
+                         dt, keep, nb, js, tree, bodies, groups, top, kin, tau, work, region, X,
+                         GY, tmp, H, M, mt)
 
 
 @inlined
@@ -1580,7 +1597,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
         if use_forces and take_kinematics(js, region, fresh, fkin, kin):
             placed = True
         lookahead_on = lookahead_due(lookahead, step + 1)
-        if not evaluate(yes, predictive, budget, no, placed, lookahead_on, locking, step + 1,
+        if not evaluate(yes, predictive, budget, no, placed, no, lookahead_on, locking, step + 1,
                         dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top, up, roots, q,
                         qd, tau, kin, work, region):
             done, status = s, 1
@@ -1591,7 +1608,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                 change_region(nc, zero, step + 1, momentum, nb, js, tree, groups, top, roots, q,
                               qd, kin, region, stack)
                 if momentum:                    # the locking impulse (evaluate's impulse)
-                    evaluate(no, predictive, zero, yes, no, no, no, step + 1, zero, dt,
+                    evaluate(no, predictive, zero, yes, no, yes, no, no, step + 1, zero, dt,
                              0.0, 1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd,
                              kin, work, region)
                 row[7] += counts[RIGIDIFIED]
@@ -1600,7 +1617,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                                  f_ext, tau, held, active, up, is_B, groups, pending, mark,
                                  order)
             again = use_forces and take_kinematics(js, region, fresh, fkin, kin)
-            if not evaluate(no, predictive, budget, no, again, lookahead_on, locking,
+            if not evaluate(no, predictive, budget, no, again, yes, lookahead_on, locking,
                             step + 1, dwell, dt, keep, kappa, nb, js, tree, bodies, groups, top,
                             up, roots, q, qd, tau, kin, work, region):
                 done, status = s, 1
@@ -1616,7 +1633,7 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
             change_region(nc, nr, step + 1, momentum, nb, js, tree, groups, top, roots, q, qd,
                           kin, region, stack)
             if nc and momentum:
-                evaluate(no, predictive, zero, yes, no, no, no, step + 1, zero, dt, 0.0,
+                evaluate(no, predictive, zero, yes, no, no, no, no, step + 1, zero, dt, 0.0,
                          1.0, nb, js, tree, bodies, groups, top, up, roots, q, qd, qd, kin, work,
                          region)
             row[7] += counts[RIGIDIFIED]
