@@ -9,6 +9,7 @@ numbers beside the paper's (Kim 2008 Table 1, Figures 6, 8 and 9).
 from __future__ import annotations
 
 import csv
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -47,8 +48,11 @@ def _save(plt, fig, title, path):
 
 
 def _legend_beside(ax):
-    """The legend to the right of ``ax``, outside it, where it hides no point."""
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+    """The legend to the right of ``ax``, outside it, where it hides no point; long
+    labels wrapped, so that it does not squeeze the panels."""
+    handles, labels = ax.get_legend_handles_labels()
+    ax.legend(handles, [textwrap.fill(label, 48) for label in labels], fontsize=7,
+              loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
 
 
 def _scene_label(rows, scene=None):
