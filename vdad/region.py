@@ -653,10 +653,11 @@ def region_passes(lo, hi, first, predictive, budget, impulse, reuse, locking, st
         n = visit[e]
         if since[n] == step:
             changed = e
-        if n >= nb and active[n] and reuse and changed < e - size[e] + 1:
-            node_vectors(n - nb, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta, gamma,
-                         G, True, tmp[7, 2])
-        elif n >= nb and active[n]:
+        if n >= nb and active[n]:
+            if reuse and changed < e - size[e] + 1:     # its subtree unchanged at this q
+                node_vectors(n - nb, nb, tree, js, kin, armature, tau, b, Y, WtWm, PF, beta,
+                             gamma, G, True, tmp[7, 2])
+                continue
             assemble_node(n - nb, nb, tree, js, kin, tau, armature, Phi, b, Y, WtWm, PF, beta,
                           gamma, G, GY, tmp)
             if first and predictive and not impulse:
