@@ -97,8 +97,10 @@ class Sleeping(_Switch):
     ``sleep_speed`` for ``sleep_time`` seconds; then all its joints are locked (a
     floating base still moves as one rigid body). It wakes when a released joint
     would accelerate faster than ``sleep_speed / sleep_time`` (the look-ahead at
-    its front: a force that would wake it within ``sleep_time``), or when its
-    floating base moves faster than ``sleep_speed``."""
+    its front: a force that would wake it within ``sleep_time``; a front locked
+    less than ``dwell`` steps before is not looked ahead, ``docs/adaptive.md``,
+    "Hysteresis and dwell"), or when its floating base moves faster than
+    ``sleep_speed``."""
 
     def __init__(self, tree, sleep_speed=0.05, sleep_time=0.5):
         super().__init__(tree)

@@ -38,7 +38,7 @@ PENDULUM300 = {"n_bodies": 300, "radius": 0.05, "resolution": [640, 480]}
 # impact reaches sooner: less error at the same threshold, 0.62 against 0.80 px at 7e-3),
 # and the coverage every two displayed frames (30 Hz; the character's dt is 1 ms): its
 # cost per frame is a tenth of a frozen character's step (scripts/bench_character.py,
-# 1.95x at every frame against 2.04x at every second, 0.82 and 0.79 px at 1.2e-2)
+# 1.96x at every frame against 2.06x at every second, 0.82 and 0.79 px at 1.2e-2)
 SLOW = 1e-4
 SLOW_OPTIONS = {"velocity_weights": SLOW, "dwell": 100, "lookahead_every": 2,
                 "coverage_every": 2 * frame_steps(1e-3)}
