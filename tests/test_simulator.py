@@ -480,14 +480,16 @@ def test_adaptive_steps_evaluate_the_built_in_forces_in_compiled_code(name, inte
     ("dog puppet", "view-bvh", {}),
     ("hanging dogs", "adaptive", {"threshold": 1e-5, "metric": "coefficients"}),
     ("falling character", "view-bvh", {"coverage_every": 5}),
+    ("pendulum", "view-oq", {"counting": "raster", "threshold": 0.03}),
+    ("dog puppet", "view-oq", {"counting": "raster", "pixels": "moved"}),
 ])
 def test_compiled_adaptive_steps_equal_the_python_steps(name, method, options):
     """Adaptive steps by semi-implicit Euler run in compiled code
     (AdaptiveDynamics.run, vdad.region.region_steps) where the forces allow: the
     same states, to the last bit, and the same counters at every step as one
     Python-level step at a time, with coverage evaluated as often (bounding
-    volumes: in the compiled loop, ``BoundingVolumes.loop_coverage``, against the
-    estimator's call from Python)."""
+    volumes and rasterised counts: in the compiled loop, ``loop_coverage``,
+    against the estimator's call from Python)."""
     import dataclasses
 
     runs = []

@@ -117,7 +117,7 @@ def _method_options(parser):
     from .bounding import VOLUMES
     from .integrators import INTEGRATORS
     from .simulator import ADAPTIVE_DEFAULTS, DEFAULTS, FRAME_RATE, METHODS
-    from .visibility import ESTIMATES, PIXELS
+    from .visibility import COUNTING, ESTIMATES, PIXELS
 
     def default(name, method=None):
         value = DEFAULTS[method][name] if method else ADAPTIVE_DEFAULTS[name]
@@ -195,9 +195,10 @@ def _method_options(parser):
                       help="whose pixels weight a node's joints: its own bodies' (the "
                       "paper's) or those of the bodies its joints move (docs/visibility.md) "
                       f"(default {default('pixels', 'view-bvh')})")
-    view.add_argument("--counting", choices=("queries", "merged"),
-                      help="view-oq counts: occlusion queries (the paper's) or one merged "
-                      "id buffer (same counts, faster) (default "
+    view.add_argument("--counting", choices=COUNTING,
+                      help="view-oq counts: OpenGL occlusion queries (the paper's), one "
+                      "merged id buffer (same counts, faster), or the same id buffer "
+                      "rasterised in compiled code on the CPU, no OpenGL (default "
                       f"{default('counting', 'view-oq')})")
     view.add_argument("--coverage-every", type=_positive_int,
                       help="steps between coverage evaluations (default: the steps of "

@@ -88,7 +88,7 @@ from .newton_euler import (
     spatial_momentum,
     subtract_at_origin,
 )
-from .visibility import region_bvh_pass
+from .visibility import RASTER, region_bvh_pass, region_raster_pass
 
 #: indices of :attr:`RegionData.counts`
 N_VISIT, N_JOINTS, ASSEMBLED, FRONT, SOLVED, ACCELERATED, LOOKAHEAD, RIGIDIFIED, RELEASED = \
@@ -1547,9 +1547,11 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     the start, the rigid ones once placed, :func:`forces_now`); ``energy``,
     ``cap_off``, ``left``: the energy cap's (:func:`resume_cap` before the steps,
     :func:`cap_energy` after each); ``coverage`` = (constants, frames) of
-    ``vdad.visibility.BoundingVolumes.loop_coverage``: ``N_M`` of every node by
-    :func:`vdad.visibility.region_bvh_pass` before the steps ``frames[0]``
-    (ascending) of the call, each under its camera (none if empty), from the
+    ``vdad.visibility.BoundingVolumes.loop_coverage`` or of
+    ``vdad.visibility.RenderedCounts.loop_coverage``: ``N_M`` of every node by
+    :func:`vdad.visibility.region_bvh_pass` or, where ``constants[0][0]`` is
+    ``RASTER``, by :func:`vdad.visibility.region_raster_pass` before the steps
+    ``frames[0]`` (ascending) of the call, each under its camera (none if empty), from the
     active joints' poses at the step's ``q`` (as ``AdaptiveDynamics.front_kinematics``
     places them for the Python steps; without forces, with the velocities that the
     step's first evaluation then takes). Writes
@@ -1563,8 +1565,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     held, pending, mark, order, is_B = sums
     fjs, fkin, states, f_ext, tau, fresh = force_work
     active, counts, qdd = region[0], region[10], work[7]
-    (codes, first, poses, volumes, cache, world, N1, moved, scratch), (due, views, Rcs, pcs) = \
-        coverage
+    (codes, first, poses, volumes, cache, world, N1, moved, scratch, raster), \
+        (due, views, Rcs, pcs) = coverage
     # placed: kin holds the active joints' kinematics at (q, qd); fresh: the joints
     # whose placement the forces' kinematics hold at q (none: q comes from Python)
     fresh[:] = False
@@ -1582,11 +1584,16 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                 active_kinematics(js, region, q, qd, not use_forces, kin)
                 placed = not use_forces
             v = views[f]
-            region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
-                            tree[1], (tree[13], tree[14]), first,
-                            (region[4], counts[N_VISIT], active, groups[4], top, groups[5],
-                             groups[6]), region[3], kin[5], kin[6], poses, volumes, cache, world,
-                            N1, region[17], moved, scratch)
+            hybrid = (region[4], counts[N_VISIT], active, groups[4], top, groups[5], groups[6])
+            if codes[0] == RASTER:
+                region_raster_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb,
+                                   tree[0], tree[1], (tree[13], tree[14]), hybrid, kin[5],
+                                   kin[6], poses, raster, region[17], moved, scratch[0])
+            else:
+                region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
+                                tree[1], (tree[13], tree[14]), first, hybrid, region[3], kin[5],
+                                kin[6], poses, volumes, cache, world, N1, region[17], moved,
+                                scratch)
             f += 1
         copy_state(q, qd, last)
         row = counters[s]

@@ -89,10 +89,11 @@ def _config(scene, args, method, options, steps, every):
 
 
 def _view(method, threshold, **extra):
-    """Options of a view-dependent run (merged counting: the same counts, faster)."""
+    """Options of a view-dependent run (view-oq: the merged id buffer's counts
+    rasterised on the CPU, inside the compiled steps; ``docs/visibility.md``)."""
     options = {"threshold": threshold, **extra}
     if method == "view-oq":
-        options["counting"] = "merged"
+        options["counting"] = "raster"
     return options
 
 

@@ -210,12 +210,13 @@ class Simulator:
     ``"aabb"``, ``estimate`` = ``"min"``, ``"node"`` or ``"bodies"``;
     :class:`~vdad.visibility.BoundingVolumes`) and ``"view-oq"`` from rendered
     pixel counts with the ``environment`` as occluder (option ``counting`` =
-    ``"queries"`` or ``"merged"``; :class:`~vdad.visibility.RenderedCounts`,
-    needs EGL). Both take ``pixels`` = ``"own"`` (the paper's: a node weighted
-    by its own bodies' pixels) or ``"moved"`` (by the pixels its joints displace,
-    ``docs/visibility.md``), ``resolution`` = (width, height) of the counting
-    (default: the camera's) and ``coverage_every`` (steps between evaluations;
-    default :func:`frame_steps`, once per displayed frame).
+    ``"queries"`` or ``"merged"`` on OpenGL, which needs EGL, or ``"raster"``
+    on the CPU; :class:`~vdad.visibility.RenderedCounts`). Both take ``pixels``
+    = ``"own"`` (the paper's: a node weighted by its own bodies' pixels) or
+    ``"moved"`` (by the pixels its joints displace, ``docs/visibility.md``),
+    ``resolution`` = (width, height) of the counting (default: the camera's)
+    and ``coverage_every`` (steps between evaluations; default
+    :func:`frame_steps`, once per displayed frame).
     Two game-engine baselines (:mod:`vdad.baselines`, on adaptive dynamics with
     ``threshold = 0`` and the :func:`~vdad.baselines.root_last_tree`):
     ``"lod-distance"`` makes whole articulated bodies rigid beyond ``distance``

@@ -9,7 +9,8 @@ counting resolution, for the camera of the path at time ``t``:
   (eq. 7) or either one alone (``estimate``). No occlusion.
 * :class:`RenderedCounts` (§5.4): each body's visible pixels, rendered with the
   environment and every body as occluders (:mod:`vdad.render.counting`, by
-  occlusion queries or the merged id buffer), summed up the tree.
+  occlusion queries or the merged id buffer on OpenGL, or :mod:`vdad.raster`,
+  the id buffer rasterised in compiled code), summed up the tree.
 
 Both take the rule ``pixels``: ``"own"`` (Kim 2008 §5.2: a node is weighted by
 the pixels of its own bodies) or ``"moved"`` (``docs/visibility.md``, "Pixels a
@@ -50,12 +51,14 @@ from .bounding import (
 from .camera import camera_at, check_path, check_resolution
 from .dca import in_parallel
 from .errors import InputError
-from .hybrid import child_slot, down_groups, front_frames
+from .hybrid import child_slot, down_groups, front_frames, group_poses
 from .kinematics import Kinematics, kinematics_pass, plan, world_poses
 from .projection import box_scratch, view_of
+from .raster import no_arrays, raster_pass
 
 ESTIMATES = ("min", "node", "bodies")
 MIN, NODE, BODIES = 0, 1, 2                      # codes of ESTIMATES for the kernels
+RASTER = 3              # codes[0] of the compiled steps' coverage: counts, not volumes
 
 #: eq. 7 skips a node's area where its bodies' total is below ``1 - SKIP_MARGIN``
 #: of its children's areas: above the relative error of the areas of spheres cut
@@ -63,6 +66,9 @@ MIN, NODE, BODIES = 0, 1, 2                      # codes of ESTIMATES for the ke
 #: computed (``docs/visibility.md``, "Areas that eq. 7 skips")
 SKIP_MARGIN = 1e-4
 PIXELS = ("own", "moved")                        # whose pixels weight a node's joints
+#: view-oq's counts: OpenGL's occlusion queries or merged id buffer, or the
+#: compiled rasteriser on the CPU (:class:`RenderedCounts`)
+COUNTING = ("queries", "merged", "raster")
 
 
 def _ids(nodes):
@@ -308,6 +314,40 @@ def region_bvh_pass(codes, view, Rc, pc, nb, left, right, forest, first, hybrid,
 
 
 @pass_kernel
+def region_raster_pass(codes, view, Rc, pc, nb, left, right, forest, hybrid, R_top, p_top, poses,
+                       raster, N, moved, t):
+    """Kim 2008 §5.4 of a hybrid body, in the compiled adaptive steps: every body
+    placed from the poses ``R_top``, ``p_top`` of the active joints' child bodies
+    (:func:`~vdad.hybrid.group_poses` into ``poses``; ``hybrid`` as
+    :func:`region_bvh_pass`'s, ``t`` (3, 3) scratch), its visible pixels
+    rasterised (:func:`~vdad.raster.raster_pass`; ``raster`` = (geometry,
+    buffers, scratch, counts (nb,))) and summed or moved up the tree into ``N``
+    (:func:`node_counts`). The evaluation of :class:`RenderedCounts` with
+    ``method="raster"`` inside ``vdad.region.region_steps``, once per frame."""
+    visit, n_visit, active, grounded, top, rel_R, rel_p = hybrid
+    R, p = poses
+    group_poses(nb, left, right, forest, visit, n_visit, active, grounded, top, rel_R, rel_p,
+                R_top, p_top, R, p, t)
+    geometry, buffers, scratch, counts = raster
+    raster_pass(view, Rc, pc, R, p, geometry, buffers, scratch, counts)
+    node_counts(codes[2], nb, left, right, counts, N, moved)
+
+
+@inlined
+def node_counts(moved_rule, nb, left, right, counts, N, moved):
+    """Each node's ``N`` (n_nodes + 1,) from the bodies' pixel ``counts`` (nb,):
+    their sum (:func:`sum_up_pass`) or, under the moved-pixels rule, the pixels
+    its joints move (:func:`moved_pass`; ``moved`` its arrays)."""
+    for b in range(nb):
+        N[b] = counts[b]
+    if moved_rule:
+        parent, root, floating, _, _, joint, sums = moved
+        moved_pass(nb, parent, root, floating, left, right, joint, sums, N)
+    else:
+        sum_up_pass(nb, left, right, N)
+
+
+@pass_kernel
 def region_coverage_pass(kind, view, Rc, pc, nb, left, right, front, act, grounded, top, R, p,
                          local, world, N, scratch):
     """``N_M`` by eq. 5 (the node's own volume) of the adaptive region's nodes
@@ -388,15 +428,15 @@ def _empty_like(x):
 
 def idle_loop_coverage(tree):
     """The coverage arguments of the compiled adaptive steps
-    (``vdad.region.region_steps``) when no bounding volumes are evaluated in the
-    loop: ``(constants, frames)`` of the types of
-    :meth:`BoundingVolumes.loop_coverage`, empty, so that numba compiles the loop
-    once."""
+    (``vdad.region.region_steps``) when nothing is evaluated in the loop:
+    ``(constants, frames)`` of the types of :meth:`BoundingVolumes.loop_coverage`,
+    empty, so that numba compiles the loop once; :meth:`RenderedCounts.loop_coverage`
+    fills some of them."""
     box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
     cache = (box, np.zeros(1), tuple(a[0] for a in box))
     constants = (np.zeros(4, np.int64), np.zeros(1, np.int64), box[1:], box, cache, box,
                  np.zeros(1), moved_arrays(tree), (np.empty((3, 3)), box_scratch()))
-    return _empty_like(constants), _frames(0)
+    return _empty_like(constants) + (no_arrays(),), _frames(0)
 
 
 def _frames(k):
@@ -431,16 +471,15 @@ class _Coverage:
         self._last_arrays = (None, None)                 # ... and its camera_arrays
         self._kin = Kinematics.empty(plan(self.model))
         self._moved = moved_arrays(tree)
+        self._no_frames = self._frame_rows = _frames(0)
+        self._held = []                  # the camera arrays each frame row holds
 
     def node_pixels(self, N):
         """Each node's ``N`` (n_nodes + 1,) from its bodies' pixels in ``N[:nb]``,
         in place, by the rule :attr:`pixels`: the sum over its bodies
         (:func:`sum_up_pass`) or the pixels its joints move (:func:`moved_pass`)."""
-        parent, root, floating, left, right, joint, S = self._moved
-        if self.pixels == "moved":
-            moved_pass(self.model.nb, parent, root, floating, left, right, joint, S, N)
-        else:
-            sum_up_pass(self.model.nb, left, right, N)
+        nb, left, right = self.model.nb, self._moved[3], self._moved[4]
+        node_counts(self.pixels == "moved", nb, left, right, N[:nb], N, self._moved)
         return N
 
     def camera(self, t):
@@ -458,6 +497,31 @@ class _Coverage:
         if adaptive is not None:
             return adaptive.body_poses(q)
         return world_poses(self.model, q, self._kin)
+
+    def _loop_frames(self, steps, times):
+        """The frames of the compiled adaptive steps' coverage: its ``steps`` (k,)
+        (counted from a call's first) and the camera arrays at ``times`` (k,)
+        (:func:`_frames`, rows kept from call to call)."""
+        k = len(times)
+        if not k:
+            return self._no_frames
+        if k > len(self._frame_rows[0]):
+            self._frame_rows, self._held = _frames(2 * k), [None] * (2 * k)
+        due, views, Rc, pc = self._frame_rows
+        for i in range(k):
+            due[i] = steps[i]
+            camera = self._camera_arrays(times[i])
+            if camera is not self._held[i]:
+                views[i], Rc[i], pc[i] = self._held[i] = camera
+        return due[:k], views[:k], Rc[:k], pc[:k]
+
+    def _camera_arrays(self, t):
+        """:func:`camera_arrays` of the camera at ``t`` (the last ones again while
+        the path returns the same camera)."""
+        cam = self.camera(t)
+        if cam is not self._last_arrays[0]:
+            self._last_arrays = (cam, camera_arrays(cam))
+        return self._last_arrays[1]
 
 
 class BoundingVolumes(_Coverage):
@@ -503,8 +567,7 @@ class BoundingVolumes(_Coverage):
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
                                 pixels == "moved", 1], np.int64)   # [3]: set at each call
         self._threaded = bool(in_parallel(self.model.nb, self._forest[1]))
-        self._no_frames = self._frame_rows = _frames(0)
-        self._held = []                  # the camera arrays each frame row holds
+        self._no_raster = no_arrays()
 
     @property
     def covers_every_node(self):
@@ -554,19 +617,8 @@ class BoundingVolumes(_Coverage):
         # the tree's own array: a deep copy's would be writable, and numba would
         # compile the steps again for it
         constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
-                     self.world, self._N1, self._moved, self._scratch)
-        k = len(times)
-        if not k:
-            return constants, self._no_frames
-        if k > len(self._frame_rows[0]):
-            self._frame_rows, self._held = _frames(2 * k), [None] * (2 * k)
-        due, views, Rc, pc = self._frame_rows
-        for i in range(k):
-            due[i] = steps[i]
-            camera = self._camera_arrays(times[i])
-            if camera is not self._held[i]:
-                views[i], Rc[i], pc[i] = self._held[i] = camera
-        return constants, (due[:k], views[:k], Rc[:k], pc[:k])
+                     self.world, self._N1, self._moved, self._scratch, self._no_raster)
+        return constants, self._loop_frames(steps, times)
 
     def _runs(self):
         """The runs of a large forest's subtrees on threads (``codes[3]``,
@@ -574,14 +626,6 @@ class BoundingVolumes(_Coverage):
         that runs on threads (a few µs a call)."""
         if self._threaded:
             self._codes[3] = numba.get_num_threads()
-
-    def _camera_arrays(self, t):
-        """:func:`camera_arrays` of the camera at ``t`` (the last ones again while
-        the path returns the same camera)."""
-        cam = self.camera(t)
-        if cam is not self._last_arrays[0]:
-            self._last_arrays = (cam, camera_arrays(cam))
-        return self._last_arrays[1]
 
     def _bind(self, adaptive):
         """The volumes kept in group frames hold for one adaptive region (its
@@ -605,16 +649,37 @@ class RenderedCounts(_Coverage):
     clipping by the viewport, summed up the tree. ``method``: ``"queries"``
     (the paper's occlusion queries after a depth pass) or ``"merged"`` (one
     draw of a merged buffer into an id image; the same counts, faster for many
-    bodies). Fails at once with :class:`~vdad.errors.RenderError` without EGL."""
+    bodies), both on OpenGL (:class:`~vdad.render.counting.PixelCounter`; fail
+    at once with :class:`~vdad.errors.RenderError` without EGL), or
+    ``"raster"``: the merged id buffer's counts rasterised in compiled code on
+    the CPU, no OpenGL (:class:`~vdad.raster.RasterCounter`)."""
 
     def __init__(self, tree, camera, environment=None, method="queries", resolution=None,
                  pixels="own"):
         super().__init__(tree, camera, resolution, pixels)
-        from .render.counting import PixelCounter
-
+        if method not in COUNTING:
+            raise InputError(f"the counting method (counting= of view-oq) must be one of "
+                             f"{COUNTING}, got {method!r}")
         start = camera_at(camera, 0.0)
         w, h = self.resolution or (start.width, start.height)
-        self.counter = PixelCounter(self.model, environment, w, h, method)
+        self.method = method
+        if method == "raster":
+            from .raster import RasterCounter
+
+            self.counter = RasterCounter(self.model, environment, w, h)
+            # the idle coverage arguments of the compiled steps (writable arrays of
+            # one type), with what the rasteriser's evaluation needs
+            (_, first, _, volumes, cache, world, N1, _, scratch, _), _ = \
+                idle_loop_coverage(tree)
+            n = tree.n_nodes
+            self._constants = (np.array([RASTER, 0, pixels == "moved", 1], np.int64), first,
+                               (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3))), volumes, cache,
+                               world, N1, tuple(np.array(a) for a in self._moved),
+                               (np.zeros((3, 3)), scratch[1]), self.counter.arrays)
+        else:
+            from .render.counting import PixelCounter
+
+            self.counter = PixelCounter(self.model, environment, w, h, method)
         self.resolution = (w, h)
 
     covers_every_node = True           # every body counted, summed or moved up the tree
@@ -623,3 +688,13 @@ class RenderedCounts(_Coverage):
         N = np.zeros(self.tree.n_nodes + 1)
         N[:self.model.nb] = self.counter.counts(self.camera(t), *self.poses(q, adaptive))
         return self.node_pixels(N)
+
+    def loop_coverage(self, steps, times, adaptive):
+        """The coverage arguments of the compiled adaptive steps
+        (``vdad.region.region_steps``), which evaluate :func:`region_raster_pass`
+        before each of the ``steps`` (k,) of a call with the camera at the given
+        ``times`` (k,) (as :meth:`BoundingVolumes.loop_coverage`); None for the
+        counts on OpenGL, which Python draws."""
+        if self.method != "raster":
+            return None
+        return self._constants, self._loop_frames(steps, times)

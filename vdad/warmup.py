@@ -69,13 +69,13 @@ def _loop():
 def _coverage():
     """Bounding-volume coverage of a whole tree, every volume type, and the batch
     forms of placements, merges and projected areas, and the rendered counts: the
-    id buffer's per body and their sums up the tree (every rule of
-    :data:`~vdad.visibility.PIXELS`)."""
+    id buffer's per body, the rasteriser's, and their sums up the tree (every
+    rule of :data:`~vdad.visibility.PIXELS`)."""
     import numpy as np
 
     from .bounding import VOLUMES, areas, body_volumes, merge, place
     from .scenes import pendulum
-    from .visibility import PIXELS, BoundingVolumes, id_counts_pass
+    from .visibility import PIXELS, BoundingVolumes, RenderedCounts, id_counts_pass
 
     scene = pendulum(4)
     sim = scene.simulator()
@@ -85,6 +85,7 @@ def _coverage():
         world = place(body_volumes(scene.model, volume), R, p)
         areas(merge(world, world), scene.camera)
     id_counts_pass(np.zeros((2, 2), np.uint32), np.zeros(4, np.int64))  # the id buffer's
+    RenderedCounts(sim.tree, scene.camera, method="raster")(0.0, sim.q)
     for pixels in PIXELS:                  # the rendered counts' sums up the tree
         BoundingVolumes(sim.tree, scene.camera, pixels=pixels).node_pixels(
             np.zeros(sim.tree.n_nodes + 1))

@@ -36,6 +36,7 @@ import numpy as np
 from ..environment import check_environment
 from ..errors import InputError, RenderError
 from ..model import check_model
+from ..raster import merged_geometry
 from ..visibility import id_counts_pass
 from . import context
 
@@ -69,41 +70,6 @@ def _positive(name, value):
     if isinstance(value, bool) or int(value) != value or value < 1:
         raise InputError(f"{name} must be a positive whole number of pixels, got {value!r}")
     return int(value)
-
-
-def _merged_geometry(model, environment, sections):
-    """Merged triangle soup of the bodies (body frames) then the environment (world).
-
-    Returns positions (nv, 3) float32, ids (nv,) uint32, indices (ni,) uint32 and
-    each body's index range: first (nb,), count (nb,) int64.
-    """
-    positions, ids, indices = [], [], []
-    first, count = np.zeros(model.nb, np.int64), np.zeros(model.nb, np.int64)
-    meshes = {}                     # id(geom) -> trimesh, for geoms shared by bodies
-    nv = ni = 0
-
-    def add(mesh, label):
-        nonlocal nv, ni
-        positions.append(np.asarray(mesh.vertices, np.float32))
-        ids.append(np.full(len(mesh.vertices), label, np.uint32))
-        indices.append(np.asarray(mesh.faces, np.uint32).ravel() + np.uint32(nv))
-        nv += len(mesh.vertices)
-        ni += indices[-1].size
-
-    for i, body in enumerate(model.bodies):
-        first[i] = ni
-        for geom in body.geoms:
-            if id(geom) not in meshes:
-                meshes[id(geom)] = geom.to_trimesh(sections)
-            add(meshes[id(geom)], i + 1)
-        count[i] = ni - first[i]
-    for geom in environment.geoms:
-        add(geom.to_trimesh(sections), 0)
-    if not positions:
-        return (np.zeros((0, 3), np.float32), np.zeros(0, np.uint32), np.zeros(0, np.uint32),
-                first, count)
-    return (np.concatenate(positions), np.concatenate(ids), np.concatenate(indices), first,
-            count)
 
 
 def _release(GL, names):
@@ -151,7 +117,7 @@ class PixelCounter:
         if not (isinstance(sections, (int, np.integer)) and sections >= 3):
             raise InputError(f"sections must be a whole number >= 3, got {sections!r}")
         context.make_current()          # first: a missing extra is a RenderError with the hint
-        positions, ids, indices, self._first, self._count = _merged_geometry(
+        positions, ids, indices, self._first, self._count, _ = merged_geometry(
             model, environment, int(sections))
         self._n_indices = indices.size
         self._transforms = np.zeros((self.nb + 1, 4, 4), np.float32)   # [id, column, row]
