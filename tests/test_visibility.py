@@ -324,17 +324,23 @@ def test_camera_checks_and_paths():
 def test_in_loop_coverage_has_the_types_of_the_idle_coverage(volume, pixels):
     """`vdad compile` compiles the compiled adaptive steps (region.region_steps)
     with the idle coverage of a view-independent run; the bounding volumes'
-    coverage of a view-bvh run and the rasteriser's of a view-oq run must have
-    the same numba types (read-only flags included), or their first run after
-    `vdad compile` compiles the loop again."""
+    coverage of a view-bvh run must have the same numba types (read-only flags
+    included), or its first run after `vdad compile` compiles the loop again.
+    The rasteriser's coverage (view-oq) has its own, which `vdad compile`
+    compiles from another model's."""
     import numba
 
-    for method, options in (("view-bvh", {"volume": volume}), ("view-oq", {"counting": "raster"})):
-        sim = pendulum(4).simulator(method=method, threshold=1e-3, pixels=pixels, **options)
-        ad = sim.adaptive
-        for steps, times in (([], []), ([0, 5], [0.0, 0.005])):
-            live = ad.coverage.loop_coverage(steps, times, ad)
-            assert numba.typeof(live) == numba.typeof(ad._idle_coverage)
+    sim = pendulum(4).simulator(method="view-bvh", threshold=1e-3, volume=volume,
+                                pixels=pixels)
+    ad = sim.adaptive
+    raster = [pendulum(n).simulator(method="view-oq", counting="raster", threshold=1e-3,
+                                    pixels=pixels).adaptive for n in (4, 8)]
+    for steps, times in (([], []), ([0, 5], [0.0, 0.005])):
+        live = ad.coverage.loop_coverage(steps, times, ad)
+        assert numba.typeof(live) == numba.typeof(ad._idle_coverage)
+        # the rasteriser's loop has a type of its own, the same for every model
+        first, second = (r.coverage.loop_coverage(steps, times, r) for r in raster)
+        assert numba.typeof(first) == numba.typeof(second) != numba.typeof(live)
 
 
 @pytest.mark.parametrize("nb", [1, 20, 300])

@@ -27,7 +27,7 @@ def test_jobs_must_be_a_positive_whole_number(jobs):
 def test_unknown_parts_are_named():
     with pytest.raises(VdadError, match=r"unknown kernel parts \['kinematic'\]"):
         compile_kernels(2, ("coverage", "kinematic"))
-    assert set(PARTS) == {"loop", "adaptive", "dynamics", "coverage"}
+    assert set(PARTS) == {"loop", "raster loop", "adaptive", "dynamics", "coverage"}
 
 
 def test_the_command_rejects_zero_jobs(capsys):

@@ -110,15 +110,17 @@ def slope(du, dv):
 
 
 @inlined
-def draw_triangle(T, label, cull, W, H, frame, tag, depth, touched, n):
+def draw_triangle(T, label, cull, occluder, box, W, H, frame, tag, depth, touched, n):
     """Rasterise one triangle ``T`` (3, 3) of image points ``(u, v, 1 / d)`` with
     id ``label`` into the buffers (per pixel ``j * W + i``: its ``tag``, the
     frame that wrote it last and its id, and its depth ``1 / d``; ``touched[:n]``:
     the pixels this frame wrote) at the samples ``(i + 0.5, j + 0.5)`` it covers
     (:func:`inside`), keeping the nearer fragment (a tie keeps the first); a
-    clockwise (back-facing) triangle is skipped if ``cull``. Each row's samples
-    are those between its edges (:func:`span`), widened by one, then tested.
-    Returns the new ``n``."""
+    clockwise (back-facing) triangle is skipped if ``cull``. Only the samples
+    in ``box`` = (first column, last column, first row, last row) are drawn,
+    and with ``occluder`` only those this frame wrote already (an occluder
+    changes no count elsewhere). Each row's samples are those between its edges
+    (:func:`span`), widened by one, then tested. Returns the new ``n``."""
     for r in range(3):
         if not (math.isfinite(T[r, 0]) and math.isfinite(T[r, 1])):
             return n
@@ -127,8 +129,8 @@ def draw_triangle(T, label, cull, W, H, frame, tag, depth, touched, n):
     hi_u = min(max(T[0, 0], T[1, 0], T[2, 0]), W + 1.0)
     lo_v = max(min(T[0, 1], T[1, 1], T[2, 1]), -1.0)
     hi_v = min(max(T[0, 1], T[1, 1], T[2, 1]), H + 1.0)
-    i0, i1 = max(0, int(math.ceil(lo_u - 0.5))), min(W - 1, int(math.floor(hi_u - 0.5)))
-    j0, j1 = max(0, int(math.ceil(lo_v - 0.5))), min(H - 1, int(math.floor(hi_v - 0.5)))
+    i0, i1 = max(box[0], int(math.ceil(lo_u - 0.5))), min(box[1], int(math.floor(hi_u - 0.5)))
+    j0, j1 = max(box[2], int(math.ceil(lo_v - 0.5))), min(box[3], int(math.floor(hi_v - 0.5)))
     if i0 > i1 or j0 > j1:                      # no sample inside its bounding box
         return n
     a, b, c = 0, 1, 2
@@ -151,6 +153,9 @@ def draw_triangle(T, label, cull, W, H, frame, tag, depth, touched, n):
         lo, hi = span(lo, hi, u0, v0, s2, v1 - v0, y)
         for i in range(max(i0, int(math.ceil(lo - 0.5)) - 1),
                        min(i1, int(math.floor(hi - 0.5)) + 1) + 1):
+            k = j * W + i
+            if occluder and tag[k] >> TAG_BITS != frame:
+                continue
             x = i + 0.5
             e0 = (u2 - u1) * (y - v1) - (v2 - v1) * (x - u1)     # opposite vertex a
             e1 = (u0 - u2) * (y - v2) - (v0 - v2) * (x - u2)     # ... b
@@ -159,7 +164,6 @@ def draw_triangle(T, label, cull, W, H, frame, tag, depth, touched, n):
                     and inside(e2, u1 - u0, v1 - v0)):
                 continue
             z = (e0 * z0 + e1 * z1 + e2 * z2) / area
-            k = j * W + i
             if tag[k] >> TAG_BITS != frame:
                 tag[k], depth[k] = (frame << TAG_BITS) | label, z
                 touched[n] = k
@@ -167,6 +171,18 @@ def draw_triangle(T, label, cull, W, H, frame, tag, depth, touched, n):
             elif z > depth[k]:
                 tag[k], depth[k] = (frame << TAG_BITS) | label, z
     return n
+
+
+@inlined
+def written_box(touched, n, W, H):
+    """The smallest box (first column, last column, first row, last row) of
+    the pixels ``touched[:n]`` in an image ``W`` pixels wide; an empty one
+    (first after last) if there are none."""
+    i0, i1, j0, j1 = W, -1, H, -1
+    for k in range(n):
+        j, i = divmod(touched[k], W)
+        i0, i1, j0, j1 = min(i0, i), max(i1, i), min(j0, j), max(j1, j)
+    return i0, i1, j0, j1
 
 
 @inlined
@@ -194,8 +210,10 @@ def raster_pass(view, Rc, pc, R, p, geometry, buffers, scratch, counts):
     culling (nb + 1,) bool). The back faces of closed meshes are culled where
     the camera is outside their sphere: its front faces hide them there, so the
     counts do not change. A triangle cut by the near plane is clipped
-    (:func:`~vdad.projection.clip_polygon`) and drawn as a fan. Returns the
-    number of pixels written."""
+    (:func:`~vdad.projection.clip_polygon`) and drawn as a fan. The
+    environment, drawn after the bodies, is drawn only where they are
+    (:func:`written_box`, ``occluder``): it hides, it is not counted, so its
+    other pixels would change nothing. Returns the number of pixels written."""
     vertices, labels, triangles, closed, spheres = geometry
     frame, tag, depth, touched = buffers
     C, U, P, Q, T, cull = scratch
@@ -225,8 +243,11 @@ def raster_pass(view, Rc, pc, R, p, geometry, buffers, scratch, counts):
         if -C[v, 2] >= znear:
             project(C, v, view, U, v)
     n = 0
+    box, boxed = (0, W - 1, 0, H - 1), False
     for t in range(triangles.shape[0]):
         label = labels[triangles[t, 0]]
+        if label == 0 and not boxed:            # the environment, after the bodies
+            box, boxed = written_box(touched, n, W, H), True
         behind = 0
         for r in range(3):
             if -C[triangles[t, r], 2] < znear:
@@ -235,7 +256,8 @@ def raster_pass(view, Rc, pc, R, p, geometry, buffers, scratch, counts):
             for r in range(3):
                 for c in range(3):
                     T[r, c] = U[triangles[t, r], c]
-            n = draw_triangle(T, label, cull[label], W, H, now, tag, depth, touched, n)
+            n = draw_triangle(T, label, cull[label], label == 0, box, W, H, now, tag, depth,
+                              touched, n)
         elif behind < 3:
             for r in range(3):
                 for c in range(3):
@@ -245,7 +267,8 @@ def raster_pass(view, Rc, pc, R, p, geometry, buffers, scratch, counts):
                 project(Q, 0, view, T, 0)
                 project(Q, f, view, T, 1)
                 project(Q, f + 1, view, T, 2)
-                n = draw_triangle(T, label, cull[label], W, H, now, tag, depth, touched, n)
+                n = draw_triangle(T, label, cull[label], label == 0, box, W, H, now, tag,
+                                  depth, touched, n)
     for b in range(counts.shape[0]):
         counts[b] = 0
     for k in range(n):
@@ -263,15 +286,6 @@ def _buffers(pixels, nv, nb):
     scratch = (np.zeros((nv, 3)), np.zeros((nv, 3)), np.zeros((8, 3)), np.zeros((8, 3)),
                np.zeros((3, 3)), np.zeros(nb + 1, bool))
     return buffers, scratch
-
-
-def no_arrays():
-    """:attr:`RasterCounter.arrays` of nothing, of the same types: the compiled
-    adaptive steps take one type of coverage arguments whatever evaluates them
-    (``vdad.visibility.idle_loop_coverage``)."""
-    geometry = (np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3), np.int64),
-                np.zeros(1, bool), np.zeros((1, 4)))
-    return (geometry, *_buffers(0, 0, 0), np.zeros(0, np.int64))
 
 
 class RasterCounter:
@@ -308,8 +322,7 @@ class RasterCounter:
     @property
     def arrays(self):
         """What :func:`raster_pass` takes beside the camera and the poses, and a
-        counts array (nb,): (geometry, buffers, scratch, counts); of the types of
-        :func:`no_arrays`."""
+        counts array (nb,): (geometry, buffers, scratch, counts)."""
         return self.geometry, self.buffers, self.scratch, np.zeros(self.nb, np.int64)
 
     def _draw(self, camera, R, p, counts):

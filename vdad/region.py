@@ -88,7 +88,7 @@ from .newton_euler import (
     spatial_momentum,
     subtract_at_origin,
 )
-from .visibility import RASTER, region_bvh_pass, region_raster_pass
+from .visibility import region_bvh_pass, region_raster_pass
 
 #: indices of :attr:`RegionData.counts`
 N_VISIT, N_JOINTS, ASSEMBLED, FRONT, SOLVED, ACCELERATED, LOOKAHEAD, RIGIDIFIED, RELEASED = \
@@ -1528,8 +1528,8 @@ def forces_now(use, F, e, t, js, q, qd, fkin, fresh, states, f_ext, tau, held, a
 
 @pass_kernel
 def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies, groups,
-                 top, up, roots, sums, use_forces, F, force_work, coverage, energy, cap_off, left,
-                 rotational, q, qd, kin, work, region, stack, last, counters):
+                 top, up, roots, sums, use_forces, F, force_work, coverage, raster, energy, cap_off,
+                 left, rotational, q, qd, kin, work, region, stack, last, counters):
     """Up to ``n`` adaptive steps by semi-implicit Euler, the first numbered
     ``step0 + 1`` by adaptive dynamics and at ``t = time0 dt`` (the simulator's
     step count), each as ``AdaptiveDynamics.step`` takes it from Python:
@@ -1547,10 +1547,11 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     the start, the rigid ones once placed, :func:`forces_now`); ``energy``,
     ``cap_off``, ``left``: the energy cap's (:func:`resume_cap` before the steps,
     :func:`cap_energy` after each); ``coverage`` = (constants, frames) of
-    ``vdad.visibility.BoundingVolumes.loop_coverage`` or of
-    ``vdad.visibility.RenderedCounts.loop_coverage``: ``N_M`` of every node by
-    :func:`vdad.visibility.region_bvh_pass` or, where ``constants[0][0]`` is
-    ``RASTER``, by :func:`vdad.visibility.region_raster_pass` before the steps
+    ``vdad.visibility.BoundingVolumes.loop_coverage`` (with ``raster`` None) or
+    of ``vdad.visibility.RenderedCounts.loop_coverage`` (the rasteriser's arrays
+    in ``raster``): ``N_M`` of every node by :func:`vdad.visibility.region_bvh_pass`
+    or :func:`vdad.visibility.region_raster_pass` (a branch numba prunes by the
+    type of ``raster``, so that each compiled loop holds one) before the steps
     ``frames[0]`` (ascending) of the call, each under its camera (none if empty), from the
     active joints' poses at the step's ``q`` (as ``AdaptiveDynamics.front_kinematics``
     places them for the Python steps; without forces, with the velocities that the
@@ -1565,8 +1566,8 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
     held, pending, mark, order, is_B = sums
     fjs, fkin, states, f_ext, tau, fresh = force_work
     active, counts, qdd = region[0], region[10], work[7]
-    (codes, first, poses, volumes, cache, world, N1, moved, scratch, raster), \
-        (due, views, Rcs, pcs) = coverage
+    (codes, first, poses, volumes, cache, world, N1, moved, scratch), (due, views, Rcs, pcs) = \
+        coverage
     # placed: kin holds the active joints' kinematics at (q, qd); fresh: the joints
     # whose placement the forces' kinematics hold at q (none: q comes from Python)
     fresh[:] = False
@@ -1584,16 +1585,18 @@ def region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bod
                 active_kinematics(js, region, q, qd, not use_forces, kin)
                 placed = not use_forces
             v = views[f]
-            hybrid = (region[4], counts[N_VISIT], active, groups[4], top, groups[5], groups[6])
-            if codes[0] == RASTER:
-                region_raster_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb,
-                                   tree[0], tree[1], (tree[13], tree[14]), hybrid, kin[5],
-                                   kin[6], poses, raster, region[17], moved, scratch[0])
-            else:
+            if raster is None:                  # numba compiles one branch: the type decides
                 region_bvh_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb, tree[0],
-                                tree[1], (tree[13], tree[14]), first, hybrid, region[3], kin[5],
-                                kin[6], poses, volumes, cache, world, N1, region[17], moved,
-                                scratch)
+                                tree[1], (tree[13], tree[14]), first,
+                                (region[4], counts[N_VISIT], active, groups[4], top, groups[5],
+                                 groups[6]), region[3], kin[5], kin[6], poses, volumes, cache,
+                                world, N1, region[17], moved, scratch)
+            else:
+                region_raster_pass(codes, (v[0], v[1], v[2], v[3]), Rcs[f], pcs[f], nb,
+                                   tree[0], tree[1], (tree[13], tree[14]),
+                                   (region[4], counts[N_VISIT], active, groups[4], top,
+                                    groups[5], groups[6]), kin[5], kin[6], poses, raster,
+                                   region[17], moved, scratch[0])
             f += 1
         copy_state(q, qd, last)
         row = counters[s]
@@ -1666,11 +1669,12 @@ def region_call(constants, tables, volumes, frames, n, step0, time0, e0, stop_on
     tree, bodies, groups, top, up, roots, sums, force work, energy, left, kin,
     work, region, stack, last, counters), ``force work`` without its joint set;
     ``tables`` = (F, the joint set of the forces' kinematics); ``volumes`` = the
-    constants of ``coverage``, whose ``frames`` come apart."""
+    constants of ``coverage`` and ``raster``, whose ``frames`` come apart."""
     (nb, js, tree, bodies, groups, top, up, roots, sums, force_work, energy, left, kin, work,
      region, stack, last, counters) = constants.data
     F, fjs = tables.data
+    coverage, raster = volumes.data
     return region_steps(n, step0, time0, e0, stop_on_change, options, nb, js, tree, bodies,
                         groups, top, up, roots, sums, use_forces, F, (fjs,) + force_work,
-                        (volumes.data, frames), energy, cap_off, left, rotational, q, qd, kin,
-                        work, region, stack, last, counters)
+                        (coverage, frames), raster, energy, cap_off, left, rotational, q, qd,
+                        kin, work, region, stack, last, counters)

@@ -54,11 +54,10 @@ from .errors import InputError
 from .hybrid import child_slot, down_groups, front_frames, group_poses
 from .kinematics import Kinematics, kinematics_pass, plan, world_poses
 from .projection import box_scratch, view_of
-from .raster import no_arrays, raster_pass
+from .raster import raster_pass
 
 ESTIMATES = ("min", "node", "bodies")
 MIN, NODE, BODIES = 0, 1, 2                      # codes of ESTIMATES for the kernels
-RASTER = 3              # codes[0] of the compiled steps' coverage: counts, not volumes
 
 #: eq. 7 skips a node's area where its bodies' total is below ``1 - SKIP_MARGIN``
 #: of its children's areas: above the relative error of the areas of spheres cut
@@ -429,14 +428,14 @@ def _empty_like(x):
 def idle_loop_coverage(tree):
     """The coverage arguments of the compiled adaptive steps
     (``vdad.region.region_steps``) when nothing is evaluated in the loop:
-    ``(constants, frames)`` of the types of :meth:`BoundingVolumes.loop_coverage`,
-    empty, so that numba compiles the loop once; :meth:`RenderedCounts.loop_coverage`
-    fills some of them."""
+    ``((constants, None), frames)`` of the types of
+    :meth:`BoundingVolumes.loop_coverage`, empty, so that numba compiles the loop
+    once for both; :meth:`RenderedCounts.loop_coverage` fills some of them."""
     box = (np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)))
     cache = (box, np.zeros(1), tuple(a[0] for a in box))
     constants = (np.zeros(4, np.int64), np.zeros(1, np.int64), box[1:], box, cache, box,
                  np.zeros(1), moved_arrays(tree), (np.empty((3, 3)), box_scratch()))
-    return _empty_like(constants) + (no_arrays(),), _frames(0)
+    return (_empty_like(constants), None), _frames(0)
 
 
 def _frames(k):
@@ -567,7 +566,6 @@ class BoundingVolumes(_Coverage):
         self._codes = np.array([self._kind, BODIES if pixels == "moved" else self._estimate,
                                 pixels == "moved", 1], np.int64)   # [3]: set at each call
         self._threaded = bool(in_parallel(self.model.nb, self._forest[1]))
-        self._no_raster = no_arrays()
 
     @property
     def covers_every_node(self):
@@ -617,8 +615,8 @@ class BoundingVolumes(_Coverage):
         # the tree's own array: a deep copy's would be writable, and numba would
         # compile the steps again for it
         constants = (self._codes, self.tree.first, self._poses, self.body, self._cache,
-                     self.world, self._N1, self._moved, self._scratch, self._no_raster)
-        return constants, self._loop_frames(steps, times)
+                     self.world, self._N1, self._moved, self._scratch)
+        return (constants, None), self._loop_frames(steps, times)
 
     def _runs(self):
         """The runs of a large forest's subtrees on threads (``codes[3]``,
@@ -668,14 +666,14 @@ class RenderedCounts(_Coverage):
 
             self.counter = RasterCounter(self.model, environment, w, h)
             # the idle coverage arguments of the compiled steps (writable arrays of
-            # one type), with what the rasteriser's evaluation needs
-            (_, first, _, volumes, cache, world, N1, _, scratch, _), _ = \
+            # one type), with what the rasteriser's evaluation needs, and its arrays
+            ((_, first, _, volumes, cache, world, N1, _, scratch), _), _ = \
                 idle_loop_coverage(tree)
             n = tree.n_nodes
-            self._constants = (np.array([RASTER, 0, pixels == "moved", 1], np.int64), first,
-                               (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3))), volumes, cache,
-                               world, N1, tuple(np.array(a) for a in self._moved),
-                               (np.zeros((3, 3)), scratch[1]), self.counter.arrays)
+            self._constants = ((np.array([0, 0, pixels == "moved", 1], np.int64), first,
+                                (np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3))), volumes,
+                                cache, world, N1, tuple(np.array(a) for a in self._moved),
+                                (np.zeros((3, 3)), scratch[1])), self.counter.arrays)
         else:
             from .render.counting import PixelCounter
 

@@ -66,6 +66,16 @@ def _loop():
     pendulum(8).simulator(method="adaptive", budget=3, dwell=0).step(4)
 
 
+def _raster_loop():
+    """The compiled adaptive steps that rasterise view-oq's counts once per frame
+    (``visibility.region_raster_pass``): a loop of its own type, compiled in a
+    process of its own."""
+    from .scenes import pendulum
+
+    pendulum(8).simulator(method="view-oq", counting="raster", threshold=1e-3,
+                          coverage_every=2).step(4)
+
+
 def _coverage():
     """Bounding-volume coverage of a whole tree, every volume type, and the batch
     forms of placements, merges and projected areas, and the rendered counts: the
@@ -92,9 +102,10 @@ def _coverage():
 
 
 #: the shares of the kernels, each compiled in a process of its own, the longest
-#: first (on two cores: the loop beside the adaptive kernels, then the DCA and the
-#: coverage on whichever core is free first)
-PARTS = {"loop": _loop, "adaptive": _adaptive, "dynamics": _dynamics, "coverage": _coverage}
+#: first (on two cores: the two loops side by side, then the adaptive kernels,
+#: the DCA and the coverage on whichever core is free first)
+PARTS = {"loop": _loop, "raster loop": _raster_loop, "adaptive": _adaptive,
+         "dynamics": _dynamics, "coverage": _coverage}
 
 
 def run_part(name):
